@@ -1,0 +1,1 @@
+"""The ``patternrl`` command line: one entry point, sub-commands loaded lazily."""

@@ -1,0 +1,336 @@
+"""Formation geometry: error, the shared slot assignment, lower bounds, collisions.
+
+Shapes: ``P`` positions (n, 2) or a batch (E, n, 2); ``C`` a pattern (n, 2) or
+(E, n, 2); metres throughout.
+
+Formation error
+    ``min over sigma, t of RMS ||p_i - c_sigma(i) - t||``. For a fixed sigma the
+    best translation aligns the centroids, so centring both sets and solving one
+    Hungarian assignment on squared distances gives the exact optimum.
+
+Shared assignment
+    Every robot computes the same assignment from the same poses: robots are
+    ordered by id, the cost matrix is built in that order, and
+    ``scipy.optimize.linear_sum_assignment`` is deterministic on identical
+    input, so ties are broken identically everywhere (by the solver's fixed
+    scan order over robot ids, then slot index). A previous assignment is kept
+    unless the new one is better by more than a hysteresis margin, so tiny
+    differences between robots' frames (realtime mode) do not flip slots.
+"""
+
+from __future__ import annotations
+
+import math
+from itertools import pairwise
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import maximum_bipartite_matching
+
+from runtime.world import DEFAULT_WORLD, WorldConfig
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Keep the previous assignment unless the new one lowers the summed squared
+#: distance by more than this fraction (plus a small absolute floor).
+HYSTERESIS_REL = 1e-3
+HYSTERESIS_ABS_M2 = 1e-6
+
+
+def centred(points: Array) -> Array:
+    """Points minus their centroid (over the robot axis, -2)."""
+    p = np.asarray(points, dtype=np.float64)
+    return p - p.mean(axis=-2, keepdims=True)
+
+
+def _sq_cost(P: Array, C: Array) -> Array:
+    d = centred(P)[..., :, None, :] - centred(C)[..., None, :, :]
+    return np.einsum("...k,...k->...", d, d)
+
+
+def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
+    """The shared optimal assignment: ``slots[i]`` is the pattern index of robot i.
+
+    Minimises the summed squared distance between centred positions and the
+    centred pattern. With ``previous`` (a permutation from the last step) the
+    old assignment is kept unless the new one is better by the hysteresis margin.
+    """
+    cost = _sq_cost(P, C)
+    _, cols = linear_sum_assignment(cost)
+    slots: IntArray = cols.astype(np.int64)
+    if previous is not None and len(previous) == len(slots) and not np.array_equal(previous, slots):
+        rows = np.arange(len(slots))
+        new, old = cost[rows, slots].sum(), cost[rows, previous].sum()
+        if not new < old - (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2):
+            return previous.astype(np.int64)
+    return slots
+
+
+def assign_slots_batch(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
+    """:func:`assign_slots` over a batch: P (E, n, 2), C (n, 2) or (E, n, 2) -> (E, n)."""
+    cost = _sq_cost(P, np.broadcast_to(C, P.shape))
+    E, n = P.shape[0], P.shape[1]
+    slots = np.empty((E, n), dtype=np.int64)
+    for e in range(E):  # one C call per env; scipy has no batched solver
+        slots[e] = linear_sum_assignment(cost[e])[1]
+    if previous is not None:
+        new = np.take_along_axis(cost, slots[..., None], -1)[..., 0].sum(-1)
+        old = np.take_along_axis(cost, previous[..., None], -1)[..., 0].sum(-1)
+        keep = ~(new < old - (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2))
+        slots[keep] = previous[keep]
+    return slots
+
+
+def slot_positions(P: Array, C: Array, slots: IntArray) -> Array:
+    """World position of each robot's slot: the centred pattern placed on the team's centroid."""
+    Cc = centred(np.broadcast_to(C, P.shape))
+    target = np.take_along_axis(Cc, slots[..., None], axis=-2)
+    return target + P.mean(axis=-2, keepdims=True)
+
+
+def formation_error(P: Array, C: Array) -> float:
+    """RMS distance to the pattern under the best assignment and translation (metres)."""
+    cost = _sq_cost(P, C)
+    r, c = linear_sum_assignment(cost)
+    return float(math.sqrt(cost[r, c].mean()))
+
+
+def formation_error_batch(P: Array, C: Array, slots: IntArray | None = None) -> Array:
+    """Formation error per env, (E,). Pass ``slots`` to reuse an assignment already solved."""
+    cost = _sq_cost(P, np.broadcast_to(C, P.shape))
+    if slots is None:
+        slots = assign_slots_batch(P, C)
+    per = np.take_along_axis(cost, slots[..., None], -1)[..., 0]
+    out: Array = np.sqrt(per.mean(-1))
+    return out
+
+
+def slot_distances(P: Array, C: Array, slots: IntArray) -> Array:
+    """Distance of every robot to its slot, (..., n)."""
+    out: Array = np.linalg.norm(P - slot_positions(P, C, slots), axis=-1)
+    return out
+
+
+def is_formed(P: Array, C: Array, tol: float = DEFAULT_WORLD.formed_tol_m) -> bool:
+    """True when every robot is within ``tol`` of its slot under the best alignment.
+
+    Uses the error-optimal (squared-distance) assignment and centroid alignment,
+    the same rule the robots follow; with tol at a quarter radius this is the
+    world's definition of "formed".
+    """
+    slots = assign_slots(P, C)
+    return bool(slot_distances(P, C, slots).max() <= tol)
+
+
+# ---------------------------------------------------------------- lower bounds
+
+
+def _min_enclosing_circle(pts: Array) -> tuple[Array, float]:
+    """Exact smallest enclosing circle (Welzl, iterative move-to-front). O(n) expected."""
+    p = [tuple(map(float, q)) for q in pts]
+
+    def circ2(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float, float]:
+        cx, cy = (a[0] + b[0]) / 2, (a[1] + b[1]) / 2
+        return cx, cy, math.hypot(a[0] - cx, a[1] - cy)
+
+    def circ3(
+        a: tuple[float, float], b: tuple[float, float], c: tuple[float, float]
+    ) -> tuple[float, float, float]:
+        ax, ay = a
+        bx, by = b[0] - ax, b[1] - ay
+        cx, cy = c[0] - ax, c[1] - ay
+        d = 2 * (bx * cy - by * cx)
+        if abs(d) < 1e-18:  # collinear: the widest pair
+            cands = [circ2(a, b), circ2(a, c), circ2(b, c)]
+            return max(cands, key=lambda k: k[2])
+        ux = (cy * (bx * bx + by * by) - by * (cx * cx + cy * cy)) / d
+        uy = (bx * (cx * cx + cy * cy) - cx * (bx * bx + by * by)) / d
+        return ux + ax, uy + ay, math.hypot(ux, uy)
+
+    def inside(c: tuple[float, float, float], q: tuple[float, float]) -> bool:
+        return math.hypot(q[0] - c[0], q[1] - c[1]) <= c[2] * (1 + 1e-12) + 1e-12
+
+    c = (p[0][0], p[0][1], 0.0)
+    for i in range(1, len(p)):
+        if inside(c, p[i]):
+            continue
+        c = (p[i][0], p[i][1], 0.0)
+        for j in range(i):
+            if inside(c, p[j]):
+                continue
+            c = circ2(p[i], p[j])
+            for k in range(j):
+                if not inside(c, p[k]):
+                    c = circ3(p[i], p[j], p[k])
+    return np.array([c[0], c[1]]), c[2]
+
+
+def _bottleneck_assignment(dist: Array) -> IntArray:
+    """Assignment minimising the largest distance (binary search over thresholds)."""
+    n = dist.shape[0]
+    values = np.unique(dist)
+    lo, hi = 0, len(values) - 1
+    best = None
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        m = maximum_bipartite_matching(csr_matrix(dist <= values[mid]), perm_type="column")
+        if (m >= 0).all():
+            best, hi = m, mid - 1
+        else:
+            lo = mid + 1
+    assert best is not None
+    # Among bottleneck-optimal assignments prefer the one with least total distance.
+    thr = values[lo] if lo < len(values) else values[-1]
+    cost = np.where(dist <= thr, dist, dist.max() * n + 1.0)
+    _, cols = linear_sum_assignment(cost)
+    return cols.astype(np.int64)
+
+
+def _weiszfeld(d: Array, t: Array, iters: int = 200) -> Array:
+    """Translation t minimising sum ||d_i - t|| (geometric median of d)."""
+    for _ in range(iters):
+        r = np.linalg.norm(d - t, axis=1)
+        r = np.maximum(r, 1e-12)
+        w = 1.0 / r
+        t_new = (d * w[:, None]).sum(0) / w.sum()
+        if np.linalg.norm(t_new - t) < 1e-12:
+            return t_new
+        t = t_new
+    return t
+
+
+def lower_bound_travel(P: Array, C: Array) -> float:
+    """Minimal total travel: min over sigma, t of sum ||p_i - c_sigma(i) - t|| (metres).
+
+    Exact for the assignment it settles on (the best translation for a fixed
+    assignment is a geometric median, found by Weiszfeld's iteration); the
+    outer minimum over assignments is an estimate by alternating assignment and
+    translation from the centroid-aligned start, so it can sit slightly above
+    the true minimum (tests bound the gap against brute force for n <= 7).
+    """
+    Pc = np.asarray(P, np.float64)
+    Cc = np.asarray(C, np.float64)
+    t = Pc.mean(0) - Cc.mean(0)
+    best = math.inf
+    for _ in range(20):
+        dist = np.linalg.norm(Pc[:, None, :] - Cc[None, :, :] - t, axis=-1)
+        _, cols = linear_sum_assignment(dist)
+        d = Pc - Cc[cols]
+        t = _weiszfeld(d, t)
+        val = float(np.linalg.norm(d - t, axis=1).sum())
+        if val >= best - 1e-12:
+            best = min(best, val)
+            break
+        best = val
+    return best
+
+
+def lower_bound_distance(P: Array, C: Array) -> float:
+    """Minimal bottleneck distance: min over sigma, t of max ||p_i - c_sigma(i) - t|| (metres).
+
+    Exact for the assignment it settles on (the best translation is the centre
+    of the smallest circle enclosing the displacements); the minimum over
+    assignments is an estimate by alternating bottleneck assignment and
+    translation from several starts.
+    """
+    Pc = np.asarray(P, np.float64)
+    Cc = np.asarray(C, np.float64)
+    best = math.inf
+    starts = [Pc.mean(0) - Cc.mean(0)]
+    # the start from the squared-error assignment's enclosing circle
+    slots = assign_slots(Pc, Cc)
+    starts.append(_min_enclosing_circle(Pc - Cc[slots])[0])
+    for t0 in starts:
+        t = t0
+        prev = math.inf
+        for _ in range(20):
+            dist = np.linalg.norm(Pc[:, None, :] - Cc[None, :, :] - t, axis=-1)
+            cols = _bottleneck_assignment(dist)
+            t, r = _min_enclosing_circle(Pc - Cc[cols])
+            if r >= prev - 1e-12:
+                break
+            prev = r
+        best = min(best, prev, r)
+    return best
+
+
+def lower_bounds(
+    P: Array,
+    C: Array,
+    v_max: float = DEFAULT_WORLD.v_max_mps,
+    dt: float = DEFAULT_WORLD.dt_s,
+) -> tuple[float, int]:
+    """(minimal total travel in metres, minimal steps) to form C from P.
+
+    steps = ceil(bottleneck distance / (v_max * dt)): the farthest robot must
+    cover its distance at one step's reach at a time. Both ignore collisions,
+    so they are true lower bounds when the outer minimum is exact; see
+    :func:`lower_bound_travel` and :func:`lower_bound_distance` for which parts
+    are exact and which are an estimate.
+    """
+    travel = lower_bound_travel(P, C)
+    steps = math.ceil(lower_bound_distance(P, C) / (v_max * dt) - 1e-9)
+    return travel, max(steps, 0)
+
+
+# ------------------------------------------------------------------- collisions
+
+
+def min_separation(P: Array) -> float | Array:
+    """Smallest centre-to-centre distance: a float for (n, 2), an (E,) array for a batch."""
+    p = np.asarray(P, dtype=np.float64)
+    d = np.linalg.norm(p[..., :, None, :] - p[..., None, :, :], axis=-1)
+    n = p.shape[-2]
+    d[..., np.arange(n), np.arange(n)] = np.inf
+    m = d.min(axis=(-1, -2))
+    return float(m) if p.ndim == 2 else m
+
+
+def swept_pair_distance(P0: Array, P1: Array) -> Array:
+    """Closest approach of every pair while all robots move in straight lines from P0 to P1.
+
+    Shapes (..., n, 2) -> (..., n, n) with inf on the diagonal. Catches two
+    robots that pass through each other within one step, which checking only
+    the end positions would miss.
+    """
+    d0 = P0[..., None, :, :] - P0[..., :, None, :]
+    d1 = P1[..., None, :, :] - P1[..., :, None, :]
+    dd = d1 - d0
+    denom = np.einsum("...k,...k->...", dd, dd)
+    s = -np.einsum("...k,...k->...", d0, dd) / np.where(denom > 0, denom, 1.0)
+    s = np.clip(np.where(denom > 0, s, 0.0), 0.0, 1.0)
+    closest = d0 + s[..., None] * dd
+    out: Array = np.linalg.norm(closest, axis=-1)
+    n = P0.shape[-2]
+    out[..., np.arange(n), np.arange(n)] = np.inf
+    return out
+
+
+def collision_pairs(
+    P0: Array, P1: Array, world: WorldConfig = DEFAULT_WORLD, tol_m: float = 1e-6
+) -> list[tuple[int, int]]:
+    """Pairs (i < j) whose discs overlap at any time during the step from P0 to P1."""
+    d = swept_pair_distance(np.asarray(P0, np.float64), np.asarray(P1, np.float64))
+    i, j = np.nonzero(np.triu(d < world.min_separation_m - tol_m, 1))
+    return list(zip(i.tolist(), j.tolist(), strict=True))
+
+
+def count_collisions(
+    P0: Array, P1: Array, world: WorldConfig = DEFAULT_WORLD, tol_m: float = 1e-6
+) -> Array:
+    """Number of colliding pairs per env during one step, (...,) int."""
+    d = swept_pair_distance(np.asarray(P0, np.float64), np.asarray(P1, np.float64))
+    n = d.shape[-1]
+    iu = np.triu_indices(n, 1)
+    out: Array = (d[..., iu[0], iu[1]] < world.min_separation_m - tol_m).sum(-1)
+    return out
+
+
+def path_length(track: Array) -> Array:
+    """Length of each robot's path, track (T, n, 2) -> (n,)."""
+    steps = [np.linalg.norm(b - a, axis=-1) for a, b in pairwise(track)]
+    out: Array = np.sum(steps, axis=0) if steps else np.zeros(track.shape[1])
+    return out

@@ -1,0 +1,674 @@
+"""Every message of Pattern-RL, with its ``encode`` right beside its ``decode``.
+
+Wire format: compact little-endian binary built with :mod:`struct`, never pickle. Every
+payload starts with a 1-byte message tag and a 1-byte format version (:data:`VERSION`)::
+
+    Pose     <BB I Q d d d d d I>                 tag, version, robot_id, step, time_s,
+                                                  x, y, vx, vy, n_live           (58 bytes)
+    Command  <BB I Q d d B d d H> + brain_id       tag, version, robot_id, step, vx, vy,
+                                                  safety_changed, safety_change_mps,
+                                                  decision_us, len(brain_id)  + utf-8
+    Status   <BB> + utf-8 JSON object             once a second: readability beats bytes
+    Pattern  <BB Q d H I> + name + points         tag, version, pattern version, formed_tol_m,
+                                                  len(name), n points; utf-8 name; n x 2 f64
+    Brain    <BB> + 3 x (<I> + bytes) + <I> + ids  request_id, manifest_json (utf-8),
+                                                  onnx bytes, then n target ids as uint32
+
+Decoding anything malformed (wrong tag or version, truncated, trailing bytes, non-finite
+floats, absurd or negative lengths and counts, invalid utf-8, bad JSON) raises
+:class:`MessageError` -- a ``ValueError`` with a one-line reason -- and nothing else.
+Encoding a message whose fields cannot be sent raises :class:`MessageError` as well, so
+what one side encodes the other side always decodes to an equal message.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from enum import IntEnum
+from typing import Any, Final, TypeAlias
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "MAX_BRAIN_ID_CHARS",
+    "MAX_MANIFEST_BYTES",
+    "MAX_ONNX_BYTES",
+    "MAX_PATTERN_NAME_BYTES",
+    "MAX_PATTERN_POINTS",
+    "MAX_REQUEST_ID_BYTES",
+    "MAX_STATUS_BYTES",
+    "MAX_TARGET_ROBOTS",
+    "VERSION",
+    "BrainMsg",
+    "Buffer",
+    "Command",
+    "Message",
+    "MessageError",
+    "PatternMsg",
+    "Pose",
+    "Status",
+    "Tag",
+    "decode",
+    "decode_brain",
+    "decode_command",
+    "decode_pattern",
+    "decode_pose",
+    "decode_status",
+    "encode",
+    "encode_brain",
+    "encode_command",
+    "encode_pattern",
+    "encode_pose",
+    "encode_status",
+]
+
+VERSION: Final = 1
+"""Wire format version written by this build; decoders accept exactly this version."""
+
+MAX_BRAIN_ID_CHARS: Final = 64
+MAX_PATTERN_NAME_BYTES: Final = 1024
+MAX_PATTERN_POINTS: Final = 65_536
+MAX_REQUEST_ID_BYTES: Final = 256
+MAX_MANIFEST_BYTES: Final = 1 << 20
+MAX_ONNX_BYTES: Final = 64 << 20
+MAX_TARGET_ROBOTS: Final = 65_536
+MAX_STATUS_BYTES: Final = 64 << 10
+
+_U32: Final = (1 << 32) - 1
+_U64: Final = (1 << 64) - 1
+
+Buffer: TypeAlias = bytes | bytearray | memoryview
+"""What decoders accept: any contiguous bytes-like payload."""
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid message, or a message that cannot be encoded."""
+
+
+class Tag(IntEnum):
+    """First byte of every payload: which message follows."""
+
+    POSE = 1
+    COMMAND = 2
+    STATUS = 3
+    PATTERN = 4
+    BRAIN = 5
+
+
+def _tag_name(tag: int) -> str:
+    try:
+        return Tag(tag).name.lower()
+    except ValueError:
+        return "unknown"
+
+
+def _check_header(buf: Buffer, tag: Tag) -> None:
+    """Raise MessageError unless ``buf`` starts with ``tag`` and :data:`VERSION`."""
+    what = tag.name.lower()
+    if len(buf) < 2:
+        raise MessageError(f"truncated {what}: {len(buf)} bytes, no room for the 2-byte header")
+    got = buf[0]
+    if got != tag:
+        raise MessageError(f"expected {what} (tag {int(tag)}), got {_tag_name(got)} (tag {got})")
+    if buf[1] != VERSION:
+        raise MessageError(f"unsupported {what} version {buf[1]} (this build reads {VERSION})")
+
+
+def _as_view(payload: object, what: str) -> memoryview:
+    try:
+        view = memoryview(payload)  # type: ignore[arg-type]
+        return view if view.format == "B" and view.ndim == 1 else view.cast("B")
+    except (TypeError, ValueError) as e:
+        raise MessageError(
+            f"{what} payload must be bytes-like, got {type(payload).__name__}"
+        ) from e
+
+
+# -- field checks shared by encoders and decoders -------------------------------------------
+
+
+def _finite(what: str, name: str, value: float) -> float:
+    if not math.isfinite(value):
+        raise MessageError(f"{what}.{name} must be finite, got {value!r}")
+    return value
+
+
+def _uint(what: str, name: str, value: object, limit: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise MessageError(f"{what}.{name} must be an int, got {type(value).__name__}")
+    if not 0 <= value <= limit:
+        raise MessageError(f"{what}.{name} must be in [0, {limit}], got {value}")
+    return value
+
+
+def _utf8(what: str, name: str, value: object, max_bytes: int, max_chars: int = -1) -> bytes:
+    if not isinstance(value, str):
+        raise MessageError(f"{what}.{name} must be a str, got {type(value).__name__}")
+    if 0 <= max_chars < len(value):
+        raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
+    try:
+        raw = value.encode("utf-8")
+    except UnicodeEncodeError as e:
+        raise MessageError(f"{what}.{name} is not encodable as utf-8: {e.reason}") from None
+    if len(raw) > max_bytes:
+        raise MessageError(f"{what}.{name} is {len(raw)} bytes, at most {max_bytes} allowed")
+    return raw
+
+
+def _text(what: str, name: str, raw: Buffer, max_chars: int = -1) -> str:
+    try:
+        value = bytes(raw).decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise MessageError(f"{what}.{name} is not valid utf-8: {e.reason}") from None
+    if 0 <= max_chars < len(value):
+        raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
+    return value
+
+
+class _Reader:
+    """Walks a payload from ``start``, turning every shortfall into MessageError."""
+
+    __slots__ = ("_pos", "_view", "_what")
+
+    def __init__(self, view: memoryview, what: str, start: int) -> None:
+        self._view = view
+        self._what = what
+        self._pos = start
+
+    def unpack(self, fmt: struct.Struct, name: str) -> tuple[Any, ...]:
+        end = self._pos + fmt.size
+        if end > len(self._view):
+            raise MessageError(
+                f"truncated {self._what}: {len(self._view)} bytes, {name} needs {end}"
+            )
+        out = fmt.unpack_from(self._view, self._pos)
+        self._pos = end
+        return out
+
+    def take(self, n: int, name: str) -> memoryview:
+        end = self._pos + n
+        if end > len(self._view):
+            raise MessageError(
+                f"truncated {self._what}: {name} claims {n} bytes, "
+                f"only {len(self._view) - self._pos} left"
+            )
+        out = self._view[self._pos : end]
+        self._pos = end
+        return out
+
+    def finish(self) -> None:
+        extra = len(self._view) - self._pos
+        if extra:
+            raise MessageError(f"{extra} trailing bytes after {self._what}")
+
+
+_HEADER: Final = struct.Struct("<BB")
+_LEN32: Final = struct.Struct("<I")
+
+
+# -- Pose -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Pose:
+    """World -> robot: where robot ``robot_id`` is at ``step``.
+
+    ``n_live`` is how many robots are live in the world this step, so a robot in lockstep
+    knows when it holds every pose of step ``step``.
+    """
+
+    robot_id: int
+    step: int
+    time_s: float
+    x: float
+    y: float
+    vx: float
+    vy: float
+    n_live: int
+
+
+_POSE: Final = struct.Struct("<BBIQdddddI")
+_new: Final = object.__new__
+_POSE_FLOATS: Final = ("time_s", "x", "y", "vx", "vy")
+
+
+def _pose_bad_float(p: tuple[float, ...]) -> MessageError | None:
+    for name, v in zip(_POSE_FLOATS, p, strict=True):
+        if not math.isfinite(v):
+            return MessageError(f"pose.{name} must be finite, got {v!r}")
+    return None
+
+
+def encode_pose(msg: Pose) -> bytes:
+    """Encode a :class:`Pose` into 58 bytes."""
+    isf = math.isfinite
+    t, x, y, vx, vy = msg.time_s, msg.x, msg.y, msg.vx, msg.vy
+    try:
+        if not (isf(t) and isf(x) and isf(y) and isf(vx) and isf(vy)):
+            raise _pose_bad_float((t, x, y, vx, vy)) or MessageError("pose: non-finite float")
+        return _POSE.pack(Tag.POSE, VERSION, msg.robot_id, msg.step, t, x, y, vx, vy, msg.n_live)
+    except (struct.error, TypeError) as e:
+        raise MessageError(f"cannot encode pose: {e}") from None
+
+
+def decode_pose(payload: Buffer) -> Pose:
+    """Decode a payload written by :func:`encode_pose`."""
+    try:
+        tag, ver, rid, step, t, x, y, vx, vy, n_live = _POSE.unpack(payload)
+    except (struct.error, TypeError, ValueError):
+        _check_header(_as_view(payload, "pose"), Tag.POSE)
+        raise MessageError(f"pose must be {_POSE.size} bytes, got {len(payload)}") from None
+    if tag != Tag.POSE or ver != VERSION:
+        _check_header(payload, Tag.POSE)
+    isf = math.isfinite
+    if not (isf(t) and isf(x) and isf(y) and isf(vx) and isf(vy)):
+        raise _pose_bad_float((t, x, y, vx, vy)) or MessageError("pose: non-finite float")
+    # Pose(...) without its frozen __init__ (eight object.__setattr__ calls, ~1 us of the
+    # ~2 us a decode would take): fill the instance dict directly. Pose has no __post_init__.
+    pose: Pose = _new(Pose)
+    pose.__dict__.update(robot_id=rid, step=step, time_s=t, x=x, y=y, vx=vx, vy=vy, n_live=n_live)
+    return pose
+
+
+# -- Command --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """Robot -> world: the velocity robot ``robot_id`` commands for ``step``.
+
+    ``brain_id`` names the brain that decided (a sha256 hex prefix, at most 64 chars).
+    ``safety_changed`` tells whether the safety filter altered the brain's output, by
+    ``safety_change_mps``; ``decision_us`` is how long the decision took.
+    """
+
+    robot_id: int
+    step: int
+    vx: float
+    vy: float
+    brain_id: str
+    safety_changed: bool
+    safety_change_mps: float
+    decision_us: float
+
+
+_COMMAND: Final = struct.Struct("<BBIQddBddH")
+_MAX_BRAIN_ID_BYTES: Final = 4 * MAX_BRAIN_ID_CHARS
+
+
+def encode_command(msg: Command) -> bytes:
+    """Encode a :class:`Command`: 49 bytes plus the utf-8 brain id."""
+    w = "command"
+    brain = _utf8(w, "brain_id", msg.brain_id, _MAX_BRAIN_ID_BYTES, MAX_BRAIN_ID_CHARS)
+    if not isinstance(msg.safety_changed, bool):
+        raise MessageError(
+            f"command.safety_changed must be a bool, got {type(msg.safety_changed).__name__}"
+        )
+    try:
+        head = _COMMAND.pack(
+            Tag.COMMAND,
+            VERSION,
+            _uint(w, "robot_id", msg.robot_id, _U32),
+            _uint(w, "step", msg.step, _U64),
+            _finite(w, "vx", msg.vx),
+            _finite(w, "vy", msg.vy),
+            int(msg.safety_changed),
+            _finite(w, "safety_change_mps", msg.safety_change_mps),
+            _finite(w, "decision_us", msg.decision_us),
+            len(brain),
+        )
+    except (struct.error, TypeError) as e:
+        raise MessageError(f"cannot encode command: {e}") from None
+    return head + brain
+
+
+def decode_command(payload: Buffer) -> Command:
+    """Decode a payload written by :func:`encode_command`."""
+    w = "command"
+    view = _as_view(payload, w)
+    _check_header(view, Tag.COMMAND)
+    r = _Reader(view, w, 0)
+    _, _, rid, step, vx, vy, changed, change, dec_us, n = r.unpack(_COMMAND, "the fixed part")
+    if changed not in (0, 1):
+        raise MessageError(f"command.safety_changed must be 0 or 1, got {changed}")
+    for name, v in (("vx", vx), ("vy", vy), ("safety_change_mps", change), ("decision_us", dec_us)):
+        _finite(w, name, v)
+    if n > _MAX_BRAIN_ID_BYTES:
+        raise MessageError(f"command.brain_id claims {n} bytes, at most {_MAX_BRAIN_ID_BYTES}")
+    brain = _text(w, "brain_id", r.take(n, "brain_id"), MAX_BRAIN_ID_CHARS)
+    r.finish()
+    return Command(rid, step, vx, vy, brain, bool(changed), change, dec_us)
+
+
+# -- Status ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """Robot -> anyone, about once a second: health of one robot.
+
+    The ``swap_*`` fields and ``old_brain_id`` answer a brain swap request: they stay at
+    their defaults ('' / False) when this status answers none.
+    """
+
+    robot_id: int
+    step: int
+    brain_id: str
+    decision_latency_us_p50: float
+    decision_latency_us_p99: float
+    loop_jitter_ms: float
+    messages_dropped: int
+    errors: int
+    safety_interventions: int
+    last_error: str
+    uptime_s: float
+    swap_request_id: str = ""
+    swap_accepted: bool = False
+    swap_reason: str = ""
+    old_brain_id: str = ""
+
+
+# Field kinds: "u32" / "u64" unsigned ints, "f" finite float, "b" bool, "s" str, "id" brain id.
+_STATUS_KINDS: Final[dict[str, str]] = {
+    "robot_id": "u32",
+    "step": "u64",
+    "brain_id": "id",
+    "decision_latency_us_p50": "f",
+    "decision_latency_us_p99": "f",
+    "loop_jitter_ms": "f",
+    "messages_dropped": "u64",
+    "errors": "u64",
+    "safety_interventions": "u64",
+    "last_error": "s",
+    "uptime_s": "f",
+    "swap_request_id": "s",
+    "swap_accepted": "b",
+    "swap_reason": "s",
+    "old_brain_id": "id",
+}
+assert tuple(_STATUS_KINDS) == tuple(f.name for f in fields(Status))
+
+
+def _status_field(name: str, value: object) -> object:
+    """Check one status field; return it in its canonical Python type."""
+    w = "status"
+    kind = _STATUS_KINDS[name]
+    if kind == "u32":
+        return _uint(w, name, value, _U32)
+    if kind == "u64":
+        return _uint(w, name, value, _U64)
+    if kind == "f":
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise MessageError(f"status.{name} must be a number, got {type(value).__name__}")
+        try:
+            return _finite(w, name, float(value))
+        except OverflowError:
+            raise MessageError(f"status.{name} is out of float range") from None
+    if kind == "b":
+        if not isinstance(value, bool):
+            raise MessageError(f"status.{name} must be a bool, got {type(value).__name__}")
+        return value
+    max_chars = MAX_BRAIN_ID_CHARS if kind == "id" else -1
+    _utf8(w, name, value, MAX_STATUS_BYTES, max_chars)
+    return value
+
+
+def encode_status(msg: Status) -> bytes:
+    """Encode a :class:`Status` as tag, version and a compact utf-8 JSON object."""
+    body = {name: _status_field(name, getattr(msg, name)) for name in _STATUS_KINDS}
+    raw = json.dumps(body, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+    out = _HEADER.pack(Tag.STATUS, VERSION) + raw.encode("utf-8")
+    if len(out) > MAX_STATUS_BYTES:
+        raise MessageError(
+            f"status is {len(out)} bytes, at most {MAX_STATUS_BYTES}: trim last_error"
+        )
+    return out
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise MessageError("status JSON repeats a key")
+    return out
+
+
+def _no_constant(token: str) -> object:
+    raise MessageError(f"status JSON holds non-finite number {token}")
+
+
+def decode_status(payload: Buffer) -> Status:
+    """Decode a payload written by :func:`encode_status`."""
+    view = _as_view(payload, "status")
+    _check_header(view, Tag.STATUS)
+    if len(view) > MAX_STATUS_BYTES:
+        raise MessageError(f"status is {len(view)} bytes, at most {MAX_STATUS_BYTES}")
+    text = _text("status", "body", view[2:])
+    try:
+        body = json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_no_constant)
+    except MessageError:
+        raise
+    except (ValueError, RecursionError) as e:
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise MessageError(f"status is not valid JSON: {reason}") from None
+    if not isinstance(body, dict):
+        raise MessageError(f"status JSON must be an object, got {type(body).__name__}")
+    missing = [k for k in _STATUS_KINDS if k not in body]
+    if missing:
+        raise MessageError(f"status JSON lacks {', '.join(missing)}")
+    extra = sorted(k for k in body if k not in _STATUS_KINDS)
+    if extra:
+        raise MessageError(f"status JSON has unknown keys {', '.join(map(repr, extra))}")
+    return Status(**{name: _status_field(name, body[name]) for name in _STATUS_KINDS})  # type: ignore[arg-type]
+
+
+# -- Pattern --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PatternMsg:
+    """Operator/world -> all: the current target pattern.
+
+    ``version`` grows monotonically with every new pattern. ``points`` is an (n, 2) float64
+    array of target slots (n may be 0); it is copied and made read-only on construction.
+    """
+
+    version: int
+    name: str
+    points: npt.NDArray[np.float64]
+    formed_tol_m: float
+
+    def __post_init__(self) -> None:
+        try:
+            pts = np.array(self.points, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise MessageError(f"pattern.points is not an array of floats: {e}") from None
+        if pts.size == 0:
+            pts = pts.reshape(0, 2)
+        if pts.ndim != 2 or pts.shape[1] != 2:
+            raise MessageError(f"pattern.points must have shape (n, 2), got {pts.shape}")
+        pts.setflags(write=False)
+        object.__setattr__(self, "points", pts)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PatternMsg):
+            return NotImplemented
+        return (
+            self.version == other.version
+            and self.name == other.name
+            and self.formed_tol_m == other.formed_tol_m
+            and np.array_equal(self.points, other.points)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+_PATTERN: Final = struct.Struct("<BBQdHI")
+
+
+def encode_pattern(msg: PatternMsg) -> bytes:
+    """Encode a :class:`PatternMsg`: 24 bytes, the utf-8 name, then n x 2 float64."""
+    w = "pattern"
+    name = _utf8(w, "name", msg.name, MAX_PATTERN_NAME_BYTES)
+    pts = msg.points
+    n = pts.shape[0]
+    if n > MAX_PATTERN_POINTS:
+        raise MessageError(f"pattern has {n} points, at most {MAX_PATTERN_POINTS}")
+    if not np.isfinite(pts).all():
+        raise MessageError("pattern.points must all be finite")
+    tol = _finite(w, "formed_tol_m", msg.formed_tol_m)
+    if tol < 0:
+        raise MessageError(f"pattern.formed_tol_m must be >= 0, got {tol!r}")
+    try:
+        head = _PATTERN.pack(
+            Tag.PATTERN, VERSION, _uint(w, "version", msg.version, _U64), tol, len(name), n
+        )
+    except (struct.error, TypeError) as e:
+        raise MessageError(f"cannot encode pattern: {e}") from None
+    return head + name + pts.astype("<f8", copy=False).tobytes()
+
+
+def decode_pattern(payload: Buffer) -> PatternMsg:
+    """Decode a payload written by :func:`encode_pattern`."""
+    w = "pattern"
+    view = _as_view(payload, w)
+    _check_header(view, Tag.PATTERN)
+    r = _Reader(view, w, 0)
+    _, _, version, tol, name_len, n = r.unpack(_PATTERN, "the fixed part")
+    _finite(w, "formed_tol_m", tol)
+    if tol < 0:
+        raise MessageError(f"pattern.formed_tol_m must be >= 0, got {tol!r}")
+    if name_len > MAX_PATTERN_NAME_BYTES:
+        raise MessageError(
+            f"pattern.name claims {name_len} bytes, at most {MAX_PATTERN_NAME_BYTES}"
+        )
+    if n > MAX_PATTERN_POINTS:
+        raise MessageError(f"pattern claims {n} points, at most {MAX_PATTERN_POINTS}")
+    name = _text(w, "name", r.take(name_len, "name"))
+    raw = r.take(16 * n, "points")
+    r.finish()
+    pts = np.frombuffer(raw, dtype="<f8").reshape(n, 2)
+    if not np.isfinite(pts).all():
+        raise MessageError("pattern.points must all be finite")
+    return PatternMsg(version, name, pts, tol)
+
+
+# -- Brain ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class BrainMsg:
+    """Operator -> robots: a new brain to swap in.
+
+    ``manifest_json`` is carried as text, unparsed: the brain loader judges it.
+    ``target_robots`` lists the robots that should swap; empty means all of them.
+    """
+
+    request_id: str
+    manifest_json: str
+    onnx_bytes: bytes
+    target_robots: tuple[int, ...] = ()
+
+
+def encode_brain(msg: BrainMsg) -> bytes:
+    """Encode a :class:`BrainMsg`: header, then uint32-length-prefixed fields."""
+    w = "brain"
+    req = _utf8(w, "request_id", msg.request_id, MAX_REQUEST_ID_BYTES)
+    manifest = _utf8(w, "manifest_json", msg.manifest_json, MAX_MANIFEST_BYTES)
+    onnx = msg.onnx_bytes
+    if not isinstance(onnx, (bytes, bytearray, memoryview)):
+        raise MessageError(f"brain.onnx_bytes must be bytes, got {type(onnx).__name__}")
+    onnx = bytes(onnx)
+    if len(onnx) > MAX_ONNX_BYTES:
+        raise MessageError(f"brain.onnx_bytes is {len(onnx)} bytes, at most {MAX_ONNX_BYTES}")
+    targets = msg.target_robots
+    if not isinstance(targets, tuple):
+        raise MessageError(f"brain.target_robots must be a tuple, got {type(targets).__name__}")
+    if len(targets) > MAX_TARGET_ROBOTS:
+        raise MessageError(f"brain targets {len(targets)} robots, at most {MAX_TARGET_ROBOTS}")
+    ids = [_uint(w, "target_robots[]", t, _U32) for t in targets]
+    if len(set(ids)) != len(ids):
+        raise MessageError("brain.target_robots repeats a robot id")
+    return b"".join(
+        (
+            _HEADER.pack(Tag.BRAIN, VERSION),
+            _LEN32.pack(len(req)),
+            req,
+            _LEN32.pack(len(manifest)),
+            manifest,
+            _LEN32.pack(len(onnx)),
+            onnx,
+            _LEN32.pack(len(ids)),
+            struct.pack(f"<{len(ids)}I", *ids),
+        )
+    )
+
+
+def decode_brain(payload: Buffer) -> BrainMsg:
+    """Decode a payload written by :func:`encode_brain`."""
+    w = "brain"
+    view = _as_view(payload, w)
+    _check_header(view, Tag.BRAIN)
+    r = _Reader(view, w, _HEADER.size)
+
+    def chunk(name: str, limit: int) -> memoryview:
+        (n,) = r.unpack(_LEN32, f"len({name})")
+        if n > limit:
+            raise MessageError(f"brain.{name} claims {n} bytes, at most {limit}")
+        return r.take(n, name)
+
+    req = _text(w, "request_id", chunk("request_id", MAX_REQUEST_ID_BYTES))
+    manifest = _text(w, "manifest_json", chunk("manifest_json", MAX_MANIFEST_BYTES))
+    onnx = bytes(chunk("onnx_bytes", MAX_ONNX_BYTES))
+    (n,) = r.unpack(_LEN32, "len(target_robots)")
+    if n > MAX_TARGET_ROBOTS:
+        raise MessageError(f"brain claims {n} target robots, at most {MAX_TARGET_ROBOTS}")
+    targets = struct.unpack(f"<{n}I", r.take(4 * n, "target_robots"))
+    r.finish()
+    if len(set(targets)) != n:
+        raise MessageError("brain.target_robots repeats a robot id")
+    return BrainMsg(req, manifest, onnx, targets)
+
+
+# -- any message ----------------------------------------------------------------------------
+
+Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg
+
+_ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
+    Pose: encode_pose,
+    Command: encode_command,
+    Status: encode_status,
+    PatternMsg: encode_pattern,
+    BrainMsg: encode_brain,
+}
+
+_DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
+    Tag.POSE: decode_pose,
+    Tag.COMMAND: decode_command,
+    Tag.STATUS: decode_status,
+    Tag.PATTERN: decode_pattern,
+    Tag.BRAIN: decode_brain,
+}
+
+
+def encode(msg: Message) -> bytes:
+    """Encode any message; the leading tag tells :func:`decode` which one it is."""
+    encoder = _ENCODERS.get(type(msg))
+    if encoder is None:
+        raise MessageError(f"cannot encode {type(msg).__name__}: not a message")
+    return encoder(msg)
+
+
+def decode(payload: Buffer) -> Message:
+    """Decode any message, dispatching on its leading tag byte."""
+    view = _as_view(payload, "message")
+    if not view:
+        raise MessageError("empty payload: no message tag")
+    decoder = _DECODERS.get(view[0])
+    if decoder is None:
+        raise MessageError(f"unknown message tag {view[0]}")
+    return decoder(view)

@@ -1,0 +1,1 @@
+"""The pymunk world over Zenoh, MCAP recording, the launcher, replay and analysis."""

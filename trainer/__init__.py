@@ -1,0 +1,1 @@
+"""Offline training: the batch world, Pattern-RL PPO, ONNX export and evaluation."""
