@@ -28,16 +28,28 @@ Choices, all documented here:
 * **Non-finite input.** A NaN/inf preferred or own velocity is treated as zero;
   a neighbour with a non-finite position is ignored, one with a non-finite
   velocity is assumed still.
-* **Deadlock breaking ("keep right").** ORCA is symmetric: two robots meeting
-  exactly head-on both slow down along the line joining them and stall nose to
-  nose. Whenever the preferred velocity violates at least one ORCA half-plane,
-  we rotate it clockwise by the small fixed angle
-  ``OrcaParams.keep_right_rad`` before solving the linear program. Every robot
-  thus veers slightly to its own right when something is in its way, so a
-  head-on pair passes right side to right side, and a symmetric crowd turns
-  into a roundabout instead of a jam. The rule is deterministic (no RNG) and
-  does nothing when the preferred velocity is already safe. Set the angle to 0
-  to recover plain RVO2 behaviour.
+* **Deadlock breaking ("keep right").** ORCA is symmetric, and symmetric
+  encounters stall: two robots crossing at right angles, mirror images of each
+  other, or a ring of robots swapping antipodes, all slow down and freeze. (An
+  exactly head-on pair does not: RVO2's tie rule picks the right leg.)
+  Whenever the preferred velocity violates at least one ORCA half-plane, we
+  rotate it clockwise by the small fixed angle ``OrcaParams.keep_right_rad``
+  (default 0.2 rad, about 11 degrees) before solving the linear program. Every
+  robot thus veers slightly to its own right when something is in its way:
+  mirror-symmetric pairs resolve, and a symmetric crowd tends to turn into a
+  roundabout instead of a jam (8 robots swapping antipodes on a 2 m circle
+  arrive at tau = 1 s; at tau = 0.5 s or 2 s they still stall, without
+  collision). The rule is a symmetry breaker, not a traffic law: it does not
+  override an encounter that is already asymmetric (a head-on pair offset by
+  a few millimetres passes on whichever side ORCA picks). It is deterministic
+  (no RNG) and does nothing when the preferred velocity is already safe.
+  Set the angle to 0 to recover plain RVO2 behaviour (the RVO2 examples
+  perturb the preference randomly instead).
+* **Infeasible crowds.** When the half-planes leave no velocity within the
+  speed circle, RVO2's third linear program picks the velocity that violates
+  them least; the 2R guarantee is then lost. In dense random crowds (30
+  robots in 3 m x 3 m) centres were seen to dip to about 0.19 m; up to 20
+  robots in 3 m x 3 m they stayed above 0.2 m.
 """
 
 from __future__ import annotations
@@ -222,7 +234,7 @@ def _finite2(v: Vec2) -> tuple[float, float, bool]:
 
 def _as_rows(a: Rows) -> list[list[float]]:
     if isinstance(a, np.ndarray):
-        rows: list[list[float]] = a.reshape(-1, 2).tolist()
+        rows: list[list[float]] = (a if a.ndim == 2 else a.reshape(-1, 2)).tolist()
         return rows
     return [[float(r[0]), float(r[1])] for r in a]
 
@@ -338,11 +350,12 @@ def _solve(
     else:
         rx, ry = pref_x, pref_y
     # Clamp: the LP stays in the max-speed circle up to rounding; make it exact.
-    n = math.sqrt(rx * rx + ry * ry)
+    # Both ways of taking the norm must give <= v_max.
+    n = math.hypot(rx, ry)
     if n > v_max:
         s = v_max / n
         rx, ry = rx * s, ry * s
-        while math.sqrt(rx * rx + ry * ry) > v_max:
+        while max(math.hypot(rx, ry), math.sqrt(rx * rx + ry * ry)) > v_max:
             rx, ry = rx * (1.0 - 1e-15), ry * (1.0 - 1e-15)
     return rx, ry
 
@@ -354,7 +367,7 @@ def orca_filter(
     nb_vel: Rows,
     *,
     world: WorldConfig = DEFAULT_WORLD,
-    params: OrcaParams = OrcaParams(),  # noqa: B008 - frozen, immutable default
+    params: OrcaParams = OrcaParams(),  # frozen dataclass: a safe default
 ) -> FilterResult:
     """The ORCA-safe velocity closest to a robot's preferred velocity.
 
@@ -394,7 +407,7 @@ def orca_filter_batch(
     mask: npt.ArrayLike,
     *,
     world: WorldConfig = DEFAULT_WORLD,
-    params: OrcaParams = OrcaParams(),  # noqa: B008 - frozen, immutable default
+    params: OrcaParams = OrcaParams(),  # frozen dataclass: a safe default
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """:func:`orca_filter` for m robots at once.
 
@@ -421,9 +434,7 @@ def orca_filter_batch(
     own_l: list[list[float]] = own.tolist()
     for i in range(m):
         sel = valid[i]
-        res = orca_filter(
-            pref_l[i], own_l[i], pos[i][sel], vel[i][sel], world=world, params=params
-        )
+        res = orca_filter(pref_l[i], own_l[i], pos[i][sel], vel[i][sel], world=world, params=params)
         safe[i] = res.velocity
         changed[i] = res.changed
     return safe, changed
