@@ -261,10 +261,11 @@ def decode_pose(payload: Buffer) -> Pose:
     try:
         tag, ver, rid, step, t, x, y, vx, vy, n_live = _POSE.unpack(payload)
     except (struct.error, TypeError, ValueError):
-        _check_header(_as_view(payload, "pose"), Tag.POSE)
-        raise MessageError(f"pose must be {_POSE.size} bytes, got {len(payload)}") from None
+        view = _as_view(payload, "pose")
+        _check_header(view, Tag.POSE)
+        raise MessageError(f"pose must be {_POSE.size} bytes, got {len(view)}") from None
     if tag != Tag.POSE or ver != VERSION:
-        _check_header(payload, Tag.POSE)
+        _check_header(_as_view(payload, "pose"), Tag.POSE)
     isf = math.isfinite
     if not (isf(t) and isf(x) and isf(y) and isf(vx) and isf(vy)):
         raise _pose_bad_float((t, x, y, vx, vy)) or MessageError("pose: non-finite float")
@@ -665,7 +666,7 @@ def encode(msg: Message) -> bytes:
 
 def decode(payload: Buffer) -> Message:
     """Decode any message, dispatching on its leading tag byte."""
-    view = _as_view(payload, "message")
+    view = payload if type(payload) is bytes else _as_view(payload, "message")
     if not view:
         raise MessageError("empty payload: no message tag")
     decoder = _DECODERS.get(view[0])
