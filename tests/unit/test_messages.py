@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 import struct
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -70,7 +72,7 @@ SAMPLES: dict[str, Message] = {
     ),
     "pattern": PatternMsg(3, "circle", np.array([[0.0, 0.4], [0.4, 0.0], [-1.5, 2.25]]), 0.025),
     "pattern-empty": PatternMsg(0, "", np.zeros((0, 2)), 0.0),
-    "pattern-unicode": PatternMsg(2**64 - 1, "cercle ◯ 圆", [[1.0, 2.0]], 0.1),
+    "pattern-unicode": PatternMsg(2**64 - 1, "cercle ◯ 圆", np.array([[1.0, 2.0]]), 0.1),
     "brain": BrainMsg("req-1", '{"obs_dim": 10, "act_dim": 2}', b"\x08\x07onnx\x00", (1, 5, 9)),
     "brain-all-robots": BrainMsg("", "", b"", ()),
     "brain-unicode": BrainMsg("requête-é", '{"name": "脑"}', b"\xff" * 3, (2**32 - 1,)),
@@ -81,14 +83,14 @@ SAMPLES: dict[str, Message] = {
 
 SMALL = {k: v for k, v in SAMPLES.items() if k != "brain-300kb"}
 
-PER_TYPE = {
+PER_TYPE: dict[type, tuple[Callable[[Any], bytes], Callable[[bytes], Message]]] = {
     Pose: (m.encode_pose, m.decode_pose),
     Command: (m.encode_command, m.decode_command),
     Status: (m.encode_status, m.decode_status),
     PatternMsg: (m.encode_pattern, m.decode_pattern),
     BrainMsg: (m.encode_brain, m.decode_brain),
 }
-DECODERS = [m.decode, *(dec for _, dec in PER_TYPE.values())]
+DECODERS: list[Callable[[bytes], Message]] = [m.decode, *(dec for _, dec in PER_TYPE.values())]
 
 
 def _decodes_or_refuses(payload: bytes) -> None:
@@ -135,7 +137,7 @@ def test_pose_keeps_float64() -> None:
 
 def test_pattern_points_are_a_readonly_float64_copy() -> None:
     src = np.array([[1, 2], [3, 4]], dtype=np.int32)
-    msg = PatternMsg(1, "sq", src, 0.1)
+    msg = PatternMsg(1, "sq", src, 0.1)  # type: ignore[arg-type]
     src[0, 0] = 99
     assert msg.points.dtype == np.float64 and msg.points.shape == (2, 2)
     assert msg.points[0, 0] == 1.0
@@ -143,11 +145,11 @@ def test_pattern_points_are_a_readonly_float64_copy() -> None:
         msg.points[0, 0] = 5.0
     back = m.decode_pattern(m.encode(msg))
     assert back.points.dtype == np.float64 and not back.points.flags.writeable
-    assert back == msg and back != PatternMsg(1, "sq", [[1, 2], [3, 5]], 0.1)
+    assert back == msg and back != PatternMsg(1, "sq", np.array([[1.0, 2], [3, 5]]), 0.1)
 
 
 def test_messages_are_frozen() -> None:
-    pose = SAMPLES["pose"]
+    pose = Pose(3, 120, 12.0, 1.5, -2.25, 0.5, -0.5, 20)
     with pytest.raises(AttributeError):
         pose.x = 1.0  # type: ignore[misc]
     assert hash(m.decode(m.encode(pose))) == hash(pose)
@@ -161,7 +163,7 @@ def test_messages_are_frozen() -> None:
     st.integers(0, 2**32 - 1),
 )
 def test_pose_round_trip_any(rid: int, step: int, fl: list[float], n_live: int) -> None:
-    pose = Pose(rid, step, *fl, n_live)
+    pose = Pose(rid, step, fl[0], fl[1], fl[2], fl[3], fl[4], n_live)
     assert m.decode_pose(m.encode_pose(pose)) == pose
 
 
@@ -210,10 +212,10 @@ def test_command_round_trip_any(
         Status(1, 1, "x" * 65, 0.0, 0.0, 0.0, 0, 0, 0, "", 0.0),
         Status(1, 1, "", 0.0, 0.0, 0.0, 0, 0, 0, "e" * 70_000, 0.0),
         Status(1, 1, "", 0.0, 0.0, 0.0, 0, 0, 0, "", 0.0, swap_accepted=1),  # type: ignore[arg-type]
-        PatternMsg(1, "p", [[0.0, math.nan]], 0.1),
-        PatternMsg(1, "p", [[0.0, 0.0]], -0.1),
-        PatternMsg(-1, "p", [[0.0, 0.0]], 0.1),
-        PatternMsg(1, "n" * 2000, [[0.0, 0.0]], 0.1),
+        PatternMsg(1, "p", np.array([[0.0, math.nan]]), 0.1),
+        PatternMsg(1, "p", np.zeros((1, 2)), -0.1),
+        PatternMsg(-1, "p", np.zeros((1, 2)), 0.1),
+        PatternMsg(1, "n" * 2000, np.zeros((1, 2)), 0.1),
         BrainMsg("r", "{}", b"", (1, 1)),
         BrainMsg("r", "{}", b"", (-1,)),
         BrainMsg("r", "{}", "not bytes", ()),  # type: ignore[arg-type]
@@ -247,7 +249,7 @@ def _status_payload(body: object, raw: bytes | None = None) -> bytes:
 
 
 def _status_body(**changes: object) -> dict[str, object]:
-    body = json.loads(m.encode(SAMPLES["status"])[2:])
+    body: dict[str, object] = json.loads(m.encode(SAMPLES["status"])[2:])
     body.update(changes)
     return body
 
