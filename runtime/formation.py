@@ -43,12 +43,14 @@ HYSTERESIS_ABS_M2 = 1e-6
 def centred(points: Array) -> Array:
     """Points minus their centroid (over the robot axis, -2)."""
     p = np.asarray(points, dtype=np.float64)
-    return p - p.mean(axis=-2, keepdims=True)
+    out: Array = p - p.mean(axis=-2, keepdims=True)
+    return out
 
 
 def _sq_cost(P: Array, C: Array) -> Array:
     d = centred(P)[..., :, None, :] - centred(C)[..., None, :, :]
-    return np.einsum("...k,...k->...", d, d)
+    out: Array = np.einsum("...k,...k->...", d, d)
+    return out
 
 
 def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
@@ -88,7 +90,8 @@ def slot_positions(P: Array, C: Array, slots: IntArray) -> Array:
     """World position of each robot's slot: the centred pattern placed on the team's centroid."""
     Cc = centred(np.broadcast_to(C, P.shape))
     target = np.take_along_axis(Cc, slots[..., None], axis=-2)
-    return target + P.mean(axis=-2, keepdims=True)
+    out: Array = target + P.mean(axis=-2, keepdims=True)
+    return out
 
 
 def formation_error(P: Array, C: Array) -> float:
@@ -130,7 +133,7 @@ def is_formed(P: Array, C: Array, tol: float = DEFAULT_WORLD.formed_tol_m) -> bo
 
 def _min_enclosing_circle(pts: Array) -> tuple[Array, float]:
     """Exact smallest enclosing circle (Welzl, iterative move-to-front). O(n) expected."""
-    p = [tuple(map(float, q)) for q in pts]
+    p = [(float(q[0]), float(q[1])) for q in pts]
 
     def circ2(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float, float]:
         cx, cy = (a[0] + b[0]) / 2, (a[1] + b[1]) / 2
@@ -186,7 +189,8 @@ def _bottleneck_assignment(dist: Array) -> IntArray:
     thr = values[lo] if lo < len(values) else values[-1]
     cost = np.where(dist <= thr, dist, dist.max() * n + 1.0)
     _, cols = linear_sum_assignment(cost)
-    return cols.astype(np.int64)
+    out: IntArray = cols.astype(np.int64)
+    return out
 
 
 def _weiszfeld(d: Array, t: Array, iters: int = 200) -> Array:
@@ -196,7 +200,7 @@ def _weiszfeld(d: Array, t: Array, iters: int = 200) -> Array:
         r = np.linalg.norm(d - t, axis=1)
         r = np.maximum(r, 1e-12)
         w = 1.0 / r
-        t_new = (d * w[:, None]).sum(0) / w.sum()
+        t_new: Array = (d * w[:, None]).sum(0) / w.sum()
         if np.linalg.norm(t_new - t) < 1e-10:
             return t_new
         t = t_new

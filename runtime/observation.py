@@ -224,8 +224,10 @@ def general_observation_one(
     return out
 
 
-def neighbours_from_general(obs: Array, k: int) -> tuple[Array, Array, Array]:
-    """Unpack a general observation's neighbour block: (rel_pos (...,k,2), rel_vel, mask (...,k))."""
+def neighbours_from_general(
+    obs: Array, k: int
+) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Unpack the neighbour block: (rel_pos (...,k,2), rel_vel (...,k,2), mask (...,k))."""
     nb = np.asarray(obs)[..., GENERAL_FIXED : GENERAL_FIXED + GENERAL_PER_NEIGHBOUR * k]
     nb = nb.reshape(*nb.shape[:-1], k, GENERAL_PER_NEIGHBOUR)
     return nb[..., 0:2], nb[..., 2:4], nb[..., 4] > 0.5

@@ -136,7 +136,8 @@ def _builtin(name: str, n: int, world: WorldConfig) -> Points:
     if not math.isfinite(gap):  # n == 1
         return np.zeros((1, 2))
     pts = dense * (world.pattern_spacing_m / gap)
-    return pts - pts.mean(axis=0)
+    out: Points = pts - pts.mean(axis=0)
+    return out
 
 
 def _read_points_file(path: Path) -> tuple[Points, bool]:
@@ -219,3 +220,57 @@ def pattern_label(name_or_path: str | Path) -> str:
     """A short name for logs and tables: the built-in name or the file's stem."""
     key = str(name_or_path)
     return key if key in _BUILTINS else Path(key).stem
+
+
+def random_pattern(
+    rng: np.random.Generator, n: int, world: WorldConfig = DEFAULT_WORLD
+) -> Points:
+    """A random shape for ``n`` robots, for training brains that form any pattern.
+
+    Draws one of three families with equal odds, each scaled like the
+    built-ins (closest pair exactly ``world.pattern_spacing_m`` apart) and
+    centred:
+
+    * a smooth closed curve ``r(theta) = 1 + sum_k a_k cos(k theta + phi_k)``, k = 2..4;
+    * an open polyline through 2 to 5 random vertices;
+    * a scattered point set (rejection-sampled with a minimum gap, then rescaled).
+    """
+    if n < 2:
+        raise PatternError(f"a pattern needs at least 2 robots, got {n}")
+    limit = 1.1 * (n - 1) * world.pattern_spacing_m  # no wider than a line of n
+    for _ in range(20):
+        pts = _random_shape(rng, n, world)
+        if float(np.ptp(pts, axis=0).max()) <= limit:
+            return pts
+    return _builtin("circle", n, world)
+
+
+def _random_shape(rng: np.random.Generator, n: int, world: WorldConfig) -> Points:
+    family = int(rng.integers(3))
+    if family == 0:
+        theta = np.linspace(0.0, 2.0 * math.pi, 512, endpoint=False)
+        r = np.ones_like(theta)
+        for k in (2, 3, 4):
+            r += rng.uniform(0.0, 0.3 / k) * np.cos(k * theta + rng.uniform(0, 2 * math.pi))
+        dense = np.stack([r * np.cos(theta), r * np.sin(theta)], axis=1)
+        pts = resample_polyline(dense, n, closed=True)
+    elif family == 1:
+        m = int(rng.integers(2, 6))
+        verts = rng.uniform(-1.0, 1.0, (m, 2))
+        pts = resample_polyline(verts, n, closed=False)
+    else:
+        side = math.sqrt(n) * 1.6
+        chosen: list[NDArray[np.float64]] = []
+        while len(chosen) < n:
+            q = rng.uniform(0.0, side, 2)
+            if all(float(np.hypot(*(q - c))) >= 1.0 for c in chosen):
+                chosen.append(q)
+            else:
+                side *= 1.002  # bounded: the box grows until n points fit
+        pts = np.asarray(chosen)
+    gap = min_spacing(pts)
+    if not math.isfinite(gap) or gap <= 1e-9:
+        return _builtin("circle", n, world)
+    pts = pts * (world.pattern_spacing_m / gap)
+    out: Points = pts - pts.mean(axis=0)
+    return out

@@ -47,7 +47,8 @@ def test_general_layout() -> None:
     assert mask.tolist() == [True, True, True, False, False]  # 3 others, padded to 5
     d = np.linalg.norm(rel[mask], axis=1)
     assert (np.diff(d) >= 0).all()  # nearest first
-    j = int(np.argmin(np.where(np.arange(4) == i, np.inf, np.linalg.norm(pos[0] - pos[0, i], axis=1))))
+    dist = np.linalg.norm(pos[0] - pos[0, i], axis=1)
+    j = int(np.argmin(np.where(np.arange(4) == i, np.inf, dist)))
     np.testing.assert_allclose(rel[0], pos[0, j] - pos[0, i])
     vel = (pos[0] - prev[0]) / 0.1
     np.testing.assert_allclose(rvel[0], vel[j] - vel[i])
