@@ -129,3 +129,15 @@ def test_cli_show_draws_png(tmp_path: Path) -> None:
     info = json.loads(r.stdout)
     assert len(info["points"]) == 10
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_random_patterns_are_valid_and_seeded() -> None:
+    from runtime.patterns import random_pattern
+
+    a = [random_pattern(np.random.default_rng(7), n) for n in range(2, 40, 3)]
+    b = [random_pattern(np.random.default_rng(7), n) for n in range(2, 40, 3)]
+    for p, q, n in zip(a, b, range(2, 40, 3), strict=True):
+        np.testing.assert_array_equal(p, q)
+        assert p.shape == (n, 2)
+        assert min_spacing(p) == pytest.approx(DEFAULT_WORLD.pattern_spacing_m)
+        assert np.ptp(p, axis=0).max() <= 1.1 * (n - 1) * DEFAULT_WORLD.pattern_spacing_m + 1e-9
