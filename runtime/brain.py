@@ -1,0 +1,501 @@
+"""Brains: "observation in, action out", learned (ONNX) or rule-based (numpy).
+
+A brain is anything with ``brain_id``, ``spec`` (the :class:`ObservationSpec` it
+reads), ``manifest`` and ``act(obs) -> velocities``. Two kinds ship here:
+
+:class:`OnnxBrain`
+    An ONNX graph run by onnxruntime on one thread without spinning. Contract:
+    input ``obs`` float32 ``[batch, obs_dim]`` (dynamic batch), output
+    ``action`` float32 ``[batch, 2]`` already in m/s (the policy mean), and
+    optionally ``std``. The graph holds everything from raw observation to
+    action (normalisation, encoder, policy head).
+
+:class:`RuleBrain` (``rule:assign``)
+    Pure numpy on the general observation: drive straight to the slot of the
+    shared assignment at up to v_max and stop there (velocity = slot vector /
+    dt, clipped to v_max). The first baseline, and what exercises the whole
+    runtime without a trained brain.
+
+Manifest. Every ONNX brain carries a :class:`BrainManifest` twice: as a
+sidecar ``<stem>.json`` next to ``<stem>.onnx`` (with ``brain_id``), and inside
+the ONNX ``metadata_props`` under :data:`METADATA_KEY` (without ``brain_id``,
+which is the sha256 hex digest of the ONNX bytes and so cannot be inside them).
+:func:`load_brain` prefers the sidecar and falls back on the metadata.
+
+Validation (:func:`validate_brain_bytes`, used for files and for hot swaps)
+refuses a brain with a one-line :class:`BrainError` when its digest does not
+match, onnxruntime cannot load it, its inputs/outputs do not match the spec
+the manifest declares, or it answers non-finite values on a fixed set of
+seeded probe observations. A brain that passes is warmed before it is
+returned, so its first real decision is as fast as the next ones.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final, Protocol, runtime_checkable
+
+import numpy as np
+import onnxruntime as ort
+from numpy.typing import NDArray
+
+from runtime.observation import (
+    ObservationError,
+    ObservationSpec,
+    general_observation,
+    paper_observation,
+)
+from runtime.world import DEFAULT_WORLD, WorldConfig
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "METADATA_KEY",
+    "RULE_ASSIGN",
+    "Brain",
+    "BrainError",
+    "BrainManifest",
+    "OnnxBrain",
+    "RuleBrain",
+    "brain_digest",
+    "load_brain",
+    "probe_observations",
+    "sidecar_path",
+    "validate_brain_bytes",
+]
+
+Array = NDArray[np.float64]
+
+FORMAT: Final = "patternrl-brain"
+FORMAT_VERSION: Final = 1
+METADATA_KEY: Final = "patternrl_manifest"
+RULE_ASSIGN: Final = "rule:assign"
+INPUT_NAME: Final = "obs"
+ACTION_NAME: Final = "action"
+STD_NAME: Final = "std"
+N_PROBES: Final = 32
+PROBE_SEED: Final = 20240917
+WARM_RUNS: Final = 20
+
+
+class BrainError(ValueError):
+    """A brain that cannot be used; the message is one line."""
+
+
+def _one_line(e: BaseException | str) -> str:
+    text = str(e).strip()
+    first = text.splitlines()[0] if text else type(e).__name__
+    return first[:300]
+
+
+def brain_digest(onnx_bytes: bytes) -> str:
+    """A brain's id: the sha256 hex digest of its ONNX bytes."""
+    return hashlib.sha256(onnx_bytes).hexdigest()
+
+
+def sidecar_path(onnx_path: str | Path) -> Path:
+    """The manifest file of a brain: ``<stem>.json`` next to ``<stem>.onnx``."""
+    p = Path(onnx_path)
+    return p.with_suffix(".json")
+
+
+# ----------------------------------------------------------------------- manifest
+
+
+@dataclass
+class BrainManifest:
+    """What a brain is: its observation and action specs, provenance and scores."""
+
+    observation: ObservationSpec
+    action: dict[str, Any] = field(
+        default_factory=lambda: {
+            "kind": "cartesian",
+            "v_max_mps": DEFAULT_WORLD.v_max_mps,
+            "dt_s": DEFAULT_WORLD.dt_s,
+        }
+    )
+    brain_id: str = ""
+    file: str = ""
+    pattern: str | None = None
+    n_robots: int | None = None
+    world: dict[str, Any] = field(default_factory=dict)
+    training: dict[str, Any] = field(default_factory=dict)
+    evaluation: dict[str, Any] = field(default_factory=dict)
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+
+    def to_dict(self, *, with_id: bool = True) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "format": self.format,
+            "format_version": self.format_version,
+        }
+        if with_id:
+            d["brain_id"] = self.brain_id
+        d.update(
+            file=self.file,
+            observation=self.observation.to_dict(),
+            action=dict(self.action),
+            pattern=self.pattern,
+            n_robots=self.n_robots,
+            world=dict(self.world),
+            training=dict(self.training),
+            evaluation=dict(self.evaluation),
+        )
+        return d
+
+    def to_json(self, *, with_id: bool = True, indent: int | None = 2) -> str:
+        """JSON text; ``with_id=False`` is what goes into the ONNX metadata."""
+        return json.dumps(self.to_dict(with_id=with_id), indent=indent, allow_nan=False)
+
+    @staticmethod
+    def from_dict(d: object) -> BrainManifest:
+        """Parse and check a manifest; raises :class:`BrainError` with a one-line reason."""
+        if not isinstance(d, dict):
+            raise BrainError(f"manifest must be a JSON object, got {type(d).__name__}")
+        fmt = d.get("format")
+        if fmt != FORMAT:
+            raise BrainError(f"manifest format is {fmt!r}, expected {FORMAT!r}")
+        ver = d.get("format_version")
+        if ver != FORMAT_VERSION:
+            raise BrainError(
+                f"manifest format_version {ver!r} unsupported (reads {FORMAT_VERSION})"
+            )
+        obs = d.get("observation")
+        if not isinstance(obs, dict):
+            raise BrainError("manifest lacks an 'observation' object")
+        try:
+            spec = ObservationSpec.from_dict(obs)
+        except ObservationError as e:
+            raise BrainError(f"manifest observation: {_one_line(e)}") from None
+        action = d.get("action")
+        if not isinstance(action, dict):
+            raise BrainError("manifest lacks an 'action' object")
+        if action.get("kind") != "cartesian":
+            raise BrainError(f"manifest action kind {action.get('kind')!r} unsupported")
+        for key in ("v_max_mps", "dt_s"):
+            v = action.get(key)
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not (math.isfinite(v) and v > 0)
+            ):
+                raise BrainError(f"manifest action.{key} must be a positive number, got {v!r}")
+        brain_id = d.get("brain_id", "")
+        if not isinstance(brain_id, str):
+            raise BrainError("manifest brain_id must be a string")
+        pattern = d.get("pattern")
+        if pattern is not None and not isinstance(pattern, str):
+            raise BrainError("manifest pattern must be a string or null")
+        n_robots = d.get("n_robots")
+        if n_robots is not None and (
+            isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 1
+        ):
+            raise BrainError("manifest n_robots must be a positive int or null")
+        dicts: dict[str, dict[str, Any]] = {}
+        for key in ("world", "training", "evaluation"):
+            v = d.get(key, {})
+            if v is None:
+                v = {}
+            if not isinstance(v, dict):
+                raise BrainError(f"manifest {key} must be an object")
+            dicts[key] = v
+        file = d.get("file", "")
+        return BrainManifest(
+            observation=spec,
+            action=dict(action),
+            brain_id=brain_id,
+            file=str(file) if file is not None else "",
+            pattern=pattern,
+            n_robots=n_robots,
+            world=dicts["world"],
+            training=dicts["training"],
+            evaluation=dicts["evaluation"],
+        )
+
+    @staticmethod
+    def from_json(text: str | bytes) -> BrainManifest:
+        try:
+            d = json.loads(text)
+        except (ValueError, RecursionError) as e:
+            raise BrainError(f"manifest is not valid JSON: {_one_line(e)}") from None
+        return BrainManifest.from_dict(d)
+
+    @property
+    def v_max_mps(self) -> float:
+        return float(self.action["v_max_mps"])
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.action["dt_s"])
+
+
+# -------------------------------------------------------------------- interface
+
+
+@runtime_checkable
+class Brain(Protocol):
+    """Observation in, action out. ``act`` is deterministic (the policy mean)."""
+
+    brain_id: str
+    spec: ObservationSpec
+    manifest: BrainManifest | None
+
+    def act(self, obs: NDArray[Any]) -> Array:
+        """(m, spec.dim) observations -> (m, 2) velocities in m/s (float64)."""
+        ...
+
+
+class RuleBrain:
+    """``rule:assign``: straight to the shared-assignment slot at up to v_max, then stop."""
+
+    def __init__(self, world: WorldConfig = DEFAULT_WORLD, k_neighbours: int = 6) -> None:
+        self.brain_id = RULE_ASSIGN
+        self.spec = ObservationSpec("general", k_neighbours=k_neighbours)
+        self.manifest: BrainManifest | None = None
+        self._inv_dt = 1.0 / world.dt_s
+        self._v_max = world.v_max_mps
+
+    def act(self, obs: NDArray[Any]) -> Array:
+        o = np.asarray(obs)
+        if o.shape[0] == 1:  # the robot's path: plain floats beat numpy on 2 numbers
+            vx = float(o[0, 0]) * self._inv_dt
+            vy = float(o[0, 1]) * self._inv_dt
+            speed = math.hypot(vx, vy)
+            if speed > self._v_max:
+                f = self._v_max / speed
+                vx, vy = vx * f, vy * f
+            return np.array([[vx, vy]])
+        v = np.asarray(o[:, 0:2], dtype=np.float64) * self._inv_dt
+        sp = np.hypot(v[:, 0], v[:, 1])
+        scale = np.where(sp > self._v_max, self._v_max / np.maximum(sp, 1e-300), 1.0)
+        out: Array = v * scale[:, None]
+        return out
+
+
+def _session_options() -> ort.SessionOptions:
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 1
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    so.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    so.log_severity_level = 3
+    return so
+
+
+def _new_session(onnx_bytes: bytes) -> ort.InferenceSession:
+    try:
+        return ort.InferenceSession(
+            onnx_bytes, sess_options=_session_options(), providers=["CPUExecutionProvider"]
+        )
+    except Exception as e:  # onnxruntime raises several private exception types
+        raise BrainError(f"onnxruntime cannot load the brain: {_one_line(e)}") from None
+
+
+class OnnxBrain:
+    """An ONNX policy run by onnxruntime (one intra-op thread, no spinning)."""
+
+    def __init__(
+        self,
+        session: ort.InferenceSession,
+        brain_id: str,
+        spec: ObservationSpec,
+        manifest: BrainManifest | None = None,
+    ) -> None:
+        self.brain_id = brain_id
+        self.spec = spec
+        self.manifest = manifest
+        self._session = session
+        self._run = session.run
+        self._outputs = [ACTION_NAME]
+        self._one = np.zeros((1, spec.dim), dtype=np.float32)  # the robot's reused input
+        self._feed = {INPUT_NAME: self._one}
+
+    def act(self, obs: NDArray[Any]) -> Array:
+        if obs.shape[0] == 1:
+            self._one[0] = obs[0]  # cast in place: no allocation on the robot's path
+            feed = self._feed
+        else:
+            feed = {INPUT_NAME: np.ascontiguousarray(obs, dtype=np.float32)}
+        out = self._run(self._outputs, feed)[0]
+        return np.asarray(out, dtype=np.float64)
+
+    @property
+    def session(self) -> ort.InferenceSession:
+        return self._session
+
+
+# ------------------------------------------------------------------- validation
+
+
+def probe_observations(spec: ObservationSpec, world: WorldConfig = DEFAULT_WORLD) -> Array:
+    """A fixed, seeded set of plausible observations for ``spec``, (N_PROBES, spec.dim).
+
+    Built with the real builders from random teams (so masks, slot features and
+    velocities look like what a robot sees), plus an all-zero row.
+    """
+    rng = np.random.default_rng(PROBE_SEED)
+    rows: list[Array] = [np.zeros((1, spec.dim))]
+    if spec.name == "paper":
+        n = spec.n_robots
+        while sum(len(r) for r in rows) < N_PROBES:
+            p0 = rng.uniform(0, world.arena_m, (n, 2))
+            steps = rng.uniform(-1, 1, (2, n, 2)) * world.max_step_m
+            frames = np.stack([p0, p0 - steps[0], p0 - steps[0] - steps[1]])
+            rows.append(paper_observation(frames))
+    else:
+        k = spec.k_neighbours
+        while sum(len(r) for r in rows) < N_PROBES:
+            n = int(rng.integers(2, k + 4))
+            p = rng.uniform(0, world.arena_m * 0.3, (n, 2))
+            prev = p - rng.uniform(-1, 1, (n, 2)) * world.max_step_m
+            slots = p + rng.normal(0, 1.0, (n, 2))
+            rows.append(general_observation(p, prev, slots, k=k, world=world))
+    out: Array = np.concatenate(rows)[:N_PROBES]
+    return out
+
+
+def _static_dim(d: object) -> int | None:
+    return d if isinstance(d, int) and d > 0 else None
+
+
+def _check_io(session: ort.InferenceSession, spec: ObservationSpec) -> None:
+    inputs = session.get_inputs()
+    names = [i.name for i in inputs]
+    if names != [INPUT_NAME]:
+        raise BrainError(f"brain inputs are {names}, expected exactly ['{INPUT_NAME}']")
+    inp = inputs[0]
+    if inp.type != "tensor(float)":
+        raise BrainError(f"brain input '{INPUT_NAME}' is {inp.type}, expected tensor(float)")
+    shape = list(inp.shape)
+    if len(shape) != 2:
+        raise BrainError(f"brain input '{INPUT_NAME}' has shape {shape}, expected [batch, obs_dim]")
+    if _static_dim(shape[0]) is not None:
+        raise BrainError(
+            f"brain input '{INPUT_NAME}' has a fixed batch {shape[0]}, expected a dynamic axis"
+        )
+    if shape[1] != spec.dim:
+        raise BrainError(
+            f"brain input '{INPUT_NAME}' has obs_dim {shape[1]}, "
+            f"but its spec '{spec.name}' needs {spec.dim}"
+        )
+    outputs = {o.name: o for o in session.get_outputs()}
+    if ACTION_NAME not in outputs:
+        raise BrainError(f"brain outputs are {sorted(outputs)}, expected '{ACTION_NAME}'")
+    extra = sorted(set(outputs) - {ACTION_NAME, STD_NAME})
+    if extra:
+        raise BrainError(f"brain has unexpected outputs {extra}")
+    act = outputs[ACTION_NAME]
+    if act.type != "tensor(float)":
+        raise BrainError(f"brain output '{ACTION_NAME}' is {act.type}, expected tensor(float)")
+    ashape = list(act.shape)
+    if len(ashape) != 2 or (_static_dim(ashape[1]) is not None and ashape[1] != 2):
+        raise BrainError(f"brain output '{ACTION_NAME}' has shape {ashape}, expected [batch, 2]")
+
+
+def _probe(brain: OnnxBrain, world: WorldConfig) -> None:
+    probes = probe_observations(brain.spec, world)
+    try:
+        batch = brain.act(probes)
+        singles = [brain.act(probes[i : i + 1]) for i in range(min(4, len(probes)))]
+        for _ in range(WARM_RUNS):
+            brain.act(probes[:1])
+    except BrainError:
+        raise
+    except Exception as e:
+        raise BrainError(f"brain failed on probe observations: {_one_line(e)}") from None
+    if batch.shape != (len(probes), 2):
+        raise BrainError(
+            f"brain answered shape {list(batch.shape)} for {len(probes)} probes, "
+            f"expected [{len(probes)}, 2]"
+        )
+    if not np.isfinite(batch).all() or not all(np.isfinite(s).all() for s in singles):
+        bad = int((~np.isfinite(batch).all(axis=1)).sum())
+        raise BrainError(f"brain outputs non-finite actions on {bad} of {len(probes)} probes")
+    if any(s.shape != (1, 2) for s in singles):
+        raise BrainError("brain answered a wrong shape for a batch of 1")
+
+
+def _validate_session(
+    session: ort.InferenceSession,
+    manifest: BrainManifest,
+    digest: str,
+    world: WorldConfig,
+) -> OnnxBrain:
+    _check_io(session, manifest.observation)
+    brain = OnnxBrain(session, digest, manifest.observation, manifest)
+    _probe(brain, world)
+    return brain
+
+
+def validate_brain_bytes(
+    onnx_bytes: bytes,
+    manifest: BrainManifest,
+    expected_digest: str,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> OnnxBrain:
+    """Check a brain fully and return it loaded and warmed, or raise :class:`BrainError`.
+
+    Refuses: bytes whose sha256 differs from ``expected_digest`` (or from the
+    manifest's ``brain_id`` when it has one), bytes onnxruntime cannot load,
+    inputs/outputs that do not match the manifest's observation spec, and
+    non-finite outputs on :func:`probe_observations`.
+    """
+    digest = brain_digest(bytes(onnx_bytes))
+    if digest != expected_digest:
+        raise BrainError(
+            f"digest mismatch: bytes hash to {digest[:12]}, expected {expected_digest[:12]}"
+        )
+    if manifest.brain_id and manifest.brain_id != digest:
+        raise BrainError(
+            f"digest mismatch: bytes hash to {digest[:12]}, manifest says {manifest.brain_id[:12]}"
+        )
+    session = _new_session(bytes(onnx_bytes))
+    brain = _validate_session(session, manifest, digest, world)
+    manifest.brain_id = digest
+    return brain
+
+
+def load_brain(ref: str, world: WorldConfig = DEFAULT_WORLD) -> Brain:
+    """``rule:assign`` or a path to a ``.onnx`` brain (sidecar manifest, else metadata).
+
+    Raises :class:`BrainError` with a one-line reason for anything unusable.
+    """
+    if ref.startswith("rule:"):
+        if ref == RULE_ASSIGN:
+            return RuleBrain(world)
+        raise BrainError(f"unknown rule brain '{ref}' (known: {RULE_ASSIGN})")
+    path = Path(ref)
+    if not path.is_file():
+        raise BrainError(f"brain file not found: {ref}")
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise BrainError(f"cannot read brain {ref}: {_one_line(e)}") from None
+    digest = brain_digest(data)
+    side = sidecar_path(path)
+    if side.is_file() and side != path:
+        try:
+            text = side.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as e:
+            raise BrainError(f"cannot read manifest {side}: {_one_line(e)}") from None
+        manifest = BrainManifest.from_json(text)
+        return validate_brain_bytes(data, manifest, manifest.brain_id or digest, world)
+    session = _new_session(data)
+    meta = session.get_modelmeta().custom_metadata_map
+    if METADATA_KEY not in meta:
+        raise BrainError(f"brain {ref} has no manifest: neither {side.name} nor ONNX metadata")
+    manifest = BrainManifest.from_json(meta[METADATA_KEY])
+    if manifest.brain_id and manifest.brain_id != digest:
+        raise BrainError(
+            f"digest mismatch: bytes hash to {digest[:12]}, manifest says {manifest.brain_id[:12]}"
+        )
+    manifest.brain_id = digest
+    if not manifest.file:
+        manifest.file = path.name
+    return _validate_session(session, manifest, digest, world)
