@@ -30,21 +30,19 @@ missing earlier frames repeat frame t, so the first velocity estimate is zero.
 
 from __future__ import annotations
 
+import importlib.machinery
+import importlib.util
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
 
 from runtime.brain import Brain
-from runtime.formation import (
-    HYSTERESIS_ABS_M2,
-    HYSTERESIS_REL,
-    assign_slots_batch,
-    slot_positions,
-)
 from runtime.observation import (
     GENERAL_PER_NEIGHBOUR,
     general_observation,
@@ -64,6 +62,44 @@ __all__ = [
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
+
+#: The hysteresis margin of runtime.formation.assign_slots, repeated here so that a
+#: robot process never imports scipy.optimize (half a second and tens of MB at
+#: start); tests/unit/test_controller.py checks the two stay equal.
+HYSTERESIS_REL = 1e-3
+HYSTERESIS_ABS_M2 = 1e-6
+
+
+def _load_lsap() -> Callable[..., Any]:
+    """scipy's ``linear_sum_assignment`` without importing all of scipy.optimize.
+
+    The solver is one C extension, ``scipy/optimize/_lsap``; loading it by file
+    skips the package's ``__init__`` (linprog, linalg, sparse, ...). Falls back
+    on the ordinary import if the file is not where it is expected.
+    """
+    try:
+        import scipy
+
+        base = Path(scipy.__path__[0]) / "optimize"
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+            path = base / f"_lsap{suffix}"
+            if path.is_file():
+                spec = importlib.util.spec_from_file_location("scipy.optimize._lsap", path)
+                if spec is None or spec.loader is None:
+                    break
+                mod = importlib.util.module_from_spec(spec)
+                spec.loader.exec_module(mod)
+                fn: Callable[..., Any] = mod.linear_sum_assignment
+                return fn
+    except (ImportError, OSError, AttributeError):
+        pass
+    from scipy.optimize import linear_sum_assignment as lsa
+
+    fallback: Callable[..., Any] = lsa
+    return fallback
+
+
+linear_sum_assignment = _load_lsap()
 
 ERR_NONFINITE = "brain output non-finite: holding still"
 ERR_TEAM = "brain cannot drive this team size: holding still"
@@ -396,6 +432,8 @@ def decide_batch(
     safety_changed (E, n)). Same numbers as :meth:`Controller.decide` robot
     by robot; a non-finite brain output holds that robot still.
     """
+    from runtime.formation import assign_slots_batch, slot_positions  # scipy.optimize: eval only
+
     f = np.asarray(frames, dtype=np.float64)
     E, _, n, _ = f.shape
     pos, prev = f[:, 0], f[:, 1]
