@@ -70,38 +70,43 @@ def sample_starts(
     rng: np.random.Generator,
     world: WorldConfig = DEFAULT_WORLD,
     avoid: Array | None = None,
-    max_tries: int = 200,
+    max_draws_per_robot: int = 200,
 ) -> Array:
     """``n`` start positions uniform in the arena, pairwise >= ``world.start_separation_m``.
 
     Also keeps a radius clear of the walls and ``start_separation_m`` clear of every
     point of ``avoid`` (the robots already there, for a robot that joins later).
-    Sequential rejection sampling, drawn in vectorised batches; raises
-    :class:`PhysicsError` when the arena is too crowded.
+    Sequential rejection sampling (each candidate uniform, kept if clear of all
+    kept so far), so the result is the training world's "uniform with separation".
+    Raises :class:`PhysicsError` when the arena is too crowded: up front when the
+    discs of diameter ``start_separation_m`` would cover more than 40 % of it (random
+    sequential packing jams near 55 %), or after ``max_draws_per_robot`` draws each.
     """
     lo, hi = world.radius_m, arena_m - world.radius_m
-    sep2 = world.start_separation_m**2
-    placed = np.empty((0, 2)) if avoid is None else np.asarray(avoid, np.float64).reshape(-1, 2)
-    n_avoid = len(placed)
-    out = list(placed)
-    for _ in range(max_tries):
-        if len(out) - n_avoid >= n:
-            break
-        cand = rng.uniform(lo, hi, size=(max(4 * (n - len(out) + n_avoid), 16), 2))
-        for c in cand:
-            if out:
-                d = np.asarray(out) - c
-                if (np.einsum("ij,ij->i", d, d) < sep2).any():
-                    continue
-            out.append(c)
-            if len(out) - n_avoid >= n:
-                break
-    if len(out) - n_avoid < n:
+    sep = world.start_separation_m
+    kept = np.empty((0, 2)) if avoid is None else np.asarray(avoid, np.float64).reshape(-1, 2)
+    n_avoid = len(kept)
+    cover = (n + n_avoid) * math.pi * (sep / 2) ** 2 / max(hi - lo, 1e-9) ** 2
+    if cover > 0.4:
         raise PhysicsError(
-            f"cannot place {n} robots {world.start_separation_m} m apart in a "
-            f"{arena_m:g} m arena"
+            f"cannot place {n} robots {sep} m apart in a {arena_m:g} m arena: too crowded"
         )
-    return np.asarray(out[n_avoid:], dtype=np.float64).reshape(n, 2)
+    pts = np.empty((n_avoid + n, 2))
+    pts[:n_avoid] = kept
+    count, draws, sep2 = n_avoid, 0, sep * sep
+    while count < n_avoid + n:
+        if draws > max_draws_per_robot * n:
+            raise PhysicsError(f"cannot place {n} robots {sep} m apart in a {arena_m:g} m arena")
+        for c in rng.uniform(lo, hi, size=(64, 2)):
+            draws += 1
+            d = pts[:count] - c
+            if count and (np.einsum("ij,ij->i", d, d) < sep2).any():
+                continue
+            pts[count] = c
+            count += 1
+            if count == n_avoid + n:
+                break
+    return pts[n_avoid:].copy()
 
 
 @dataclass
