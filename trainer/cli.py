@@ -1,0 +1,235 @@
+"""``patternrl train``: train a brain with Pattern-RL (or standard PPO) and export it.
+
+Example::
+
+    patternrl train --pattern heart --robots 10 --out exports/heart-10-general.onnx
+
+trains until the deterministic policy forms the heart in >= 95 % of held-out
+episodes (or the time budget runs out), exports the best policy by held-out
+evaluation as ``heart-10-general.onnx`` with its manifest ``heart-10-general.json``,
+evaluates it as a robot runs it (ORCA on, 100 fresh episodes; the numbers go
+into the manifest) and leaves the learning curve (``.curve.csv``, ``.curve.png``)
+and checkpoints (``.ckpt.pt``, ``.best.pt``) beside it.
+
+Bad input (unknown pattern, unreadable ``--init``/``--resume`` file, a brain of
+the wrong observation) gives a one-line error and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from runtime.brain import BrainError, BrainManifest, load_brain
+from runtime.patterns import PatternError, make_pattern
+from runtime.world import DEFAULT_WORLD
+from trainer.config import ALGOS, PAPER_LRS, TrainConfig
+from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
+from trainer.export import write_brain
+from trainer.train import InitError, RunPlan, artefact_paths, obs_spec_for, reward_for, train
+from trainer.world import PAPER_REWARD
+
+DEFAULT_TIME_BUDGET_S = 1800.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    d = TrainConfig()
+    p.add_argument("--pattern", default="circle", help="built-in name or points file")
+    p.add_argument(
+        "--patterns",
+        help="comma-separated sequence (e.g. circle,cross,line,heart), each continuing the last",
+    )
+    p.add_argument("--robots", type=int, default=d.n_robots, help="team size (default 10)")
+    p.add_argument("--algo", choices=ALGOS, default=d.algo, help="default pattern-rl")
+    p.add_argument("--obs", choices=("paper", "general"), default=d.obs, help="default general")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--out", required=True, type=Path, help="the brain to write (.onnx)")
+    stop = p.add_argument_group("stopping (per pattern; the first reached wins)")
+    stop.add_argument("--episodes", type=int, help="training episodes")
+    stop.add_argument(
+        "--until-success",
+        type=float,
+        help="held-out deterministic success rate (default 0.95 when --episodes is not given)",
+    )
+    stop.add_argument(
+        "--time-budget-s",
+        type=float,
+        help=f"seconds (default {DEFAULT_TIME_BUDGET_S:.0f} without --episodes)",
+    )
+    p.add_argument("--init", help="fine-tune from a brain (.onnx) or a checkpoint (.pt)")
+    p.add_argument("--resume", help="continue an interrupted run from its .ckpt.pt")
+    p.add_argument("--envs", type=int, default=d.n_envs, help=f"worlds side by side ({d.n_envs})")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    tune = p.add_argument_group("tuning")
+    tune.add_argument(
+        "--paper-lrs", action="store_true", help="the paper's learning rates (1e-4, 2e-4)"
+    )
+    tune.add_argument("--lr-decay", action="store_true", help="linear decay over the budget")
+    tune.add_argument(
+        "--reward",
+        choices=("shaped", "paper"),
+        default="shaped",
+        help="shaped: the world's default with the per-robot progress term (training-only "
+        "credit signal); paper: eq. 6 alone",
+    )
+    tune.add_argument("--k-neighbours", type=int, default=d.k_neighbours)
+    tune.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    tune.add_argument(
+        "--final-eval-episodes",
+        type=int,
+        default=100,
+        help="episodes of the exported brain's evaluation (ORCA on) for its manifest; 0 skips",
+    )
+    tune.add_argument("--threads", type=int, default=d.threads, help="torch threads (default 1)")
+    tune.add_argument("--no-progress", action="store_true", help="no bar, no log lines")
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    changes: dict[str, Any] = {
+        "algo": args.algo,
+        "obs": args.obs,
+        "n_robots": args.robots,
+        "seed": args.seed,
+        "n_envs": args.envs,
+        "k_neighbours": args.k_neighbours,
+        "eval_episodes": args.eval_episodes,
+        "threads": args.threads,
+        "lr_decay": args.lr_decay,
+    }
+    if args.paper_lrs:
+        changes.update(PAPER_LRS)
+    if args.reward == "paper":
+        changes["reward"] = dataclasses.asdict(PAPER_REWARD)
+    return TrainConfig(**changes)
+
+
+def _fail(msg: str) -> int:
+    print(f"patternrl train: {msg}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    patterns = [s.strip() for s in (args.patterns or args.pattern).split(",") if s.strip()]
+    if not patterns:
+        return _fail("no pattern given")
+    try:
+        cfg = config_from_args(args)
+    except ValueError as e:
+        return _fail(str(e))
+    try:
+        for p in patterns:
+            make_pattern(p, cfg.n_robots, DEFAULT_WORLD)
+    except PatternError as e:
+        return _fail(str(e))
+    if args.out.suffix != ".onnx":
+        return _fail(f"--out must name an .onnx file, got {args.out}")
+    for flag, path in (("--init", args.init), ("--resume", args.resume)):
+        if path and not Path(path).is_file():
+            return _fail(f"cannot read {flag} {path}: no such file")
+    until = args.until_success
+    if until is None and args.episodes is None:
+        until = 0.95
+    budget = args.time_budget_s
+    if budget is None and args.episodes is None:
+        budget = DEFAULT_TIME_BUDGET_S
+    plan = RunPlan(
+        patterns=patterns,
+        out=args.out,
+        episodes=args.episodes,
+        until_success=until,
+        time_budget_s=budget,
+        init=args.init,
+        resume=args.resume,
+        progress=False if args.no_progress else None,
+    )
+    try:
+        result = train(cfg, plan)
+    except InitError as e:
+        return _fail(str(e))
+
+    spec = obs_spec_for(cfg)
+    world = plan.world
+    init_id = None
+    if args.init and args.init.endswith(".onnx"):
+        try:
+            init_id = load_brain(args.init).brain_id
+        except BrainError:
+            init_id = None
+    manifest = BrainManifest(
+        observation=spec,
+        action={"kind": "cartesian", "v_max_mps": world.v_max_mps, "dt_s": world.dt_s},
+        pattern=patterns[-1],
+        n_robots=cfg.n_robots,
+        world=dataclasses.asdict(world),
+        training={
+            "algorithm": cfg.algo,
+            "episodes": result.episodes,
+            "agent_steps": result.curve[-1]["agent_steps"] if result.curve else 0,
+            "iterations": len(result.curve),
+            "seed": cfg.seed,
+            "wall_time_s": round(result.wall_s, 1),
+            "patterns": patterns,
+            "stopped": result.stopped,
+            "best_iteration": result.best_iteration,
+            "held_out_success": result.best_eval_success,
+            "held_out_episodes": cfg.eval_episodes,
+            "init": args.init,
+            "init_brain_id": init_id,
+            "reward": dataclasses.asdict(reward_for(cfg)),
+            "config": cfg.to_dict(),
+        },
+    )
+    write_brain(result.agent, args.out, manifest)
+    if args.final_eval_episodes > 0:
+        brain = load_brain(str(args.out))
+        ev = evaluate_brain(
+            brain,
+            patterns[-1],
+            cfg.n_robots,
+            args.final_eval_episodes,
+            seed=DEFAULT_EVAL_SEED,
+            progress=False if args.no_progress else None,
+            label=args.out.stem,
+        )
+        manifest.evaluation = ev.manifest_block()
+        write_brain(result.agent, args.out, manifest)
+
+    files = {k: str(v) for k, v in artefact_paths(args.out).items()}
+    summary = {
+        "brain": str(args.out),
+        "brain_id": manifest.brain_id,
+        "size_bytes": args.out.stat().st_size,
+        "algorithm": cfg.algo,
+        "observation": spec.to_dict(),
+        "patterns": patterns,
+        "n_robots": cfg.n_robots,
+        "episodes": result.episodes,
+        "wall_time_s": round(result.wall_s, 1),
+        "stopped": result.stopped,
+        "held_out_success": result.best_eval_success,
+        "evaluation": manifest.evaluation,
+        "files": files,
+    }
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+    else:
+        ev_text = ""
+        if manifest.evaluation:
+            e = manifest.evaluation
+            ev_text = (
+                f"; evaluation ({e['episodes']} episodes, ORCA): success "
+                f"{100 * e['success_rate']:.1f} %, {e['collisions']} collisions, "
+                f"steps {e['steps_ratio'] or float('nan'):.3f}x"
+            )
+        print(
+            f"{args.out} ({summary['size_bytes'] // 1024} KB): {cfg.algo}, {spec.name} "
+            f"observation, {result.episodes} episodes in {result.wall_s:.0f} s "
+            f"(stopped: {result.stopped}); held-out success "
+            f"{100 * result.best_eval_success:.1f} %{ev_text}\n"
+            f"curve: {files['curve_png']}"
+        )
+    return 0

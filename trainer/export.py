@@ -1,0 +1,202 @@
+"""Export a trained agent as a brain: one ONNX graph plus its manifest.
+
+The graph holds everything from the raw observation to the action::
+
+    obs [batch, D] -> Sub(shift) -> Mul(scale) -> Clip(+-5)          normaliser
+                   -> Gemm -> Relu -> Gemm                          encoder (Pattern-RL only)
+                   -> Gemm -> Relu -> Gemm -> Relu -> Gemm -> Relu  policy trunk 256-128-128
+                   -> Gemm -> Tanh -> Mul(v_max)                    "action" [batch, 2], m/s
+                   -> Gemm -> Softplus -> Add(min) -> Mul(v_max)    "std"    [batch, 2], m/s
+
+**Why the graph is built from the weights with ``onnx.helper``, not
+``torch.onnx.export``.** torch 2.13's default exporter is the dynamo one, which
+needs ``onnxscript`` (not a dependency here) and whose output graph changes
+with torch versions; the legacy TorchScript exporter (``dynamo=False``) is
+deprecated. The network is a fixed chain of affine layers and element-wise
+activations, so writing the ~20 nodes by hand is short, exact and
+torch-version proof: the graph is opset 17 (``Gemm``, ``Relu``, ``Tanh``,
+``Softplus``, ``Clip``), checked by ``onnx.checker``, and its initializers
+carry the torch parameter names, so :func:`agent_from_onnx` reads a brain back
+for fine-tuning (``patternrl train --init BRAIN.onnx``).
+
+The manifest (:class:`runtime.brain.BrainManifest`, DESIGN.md "Brain = ONNX
+file + manifest") travels twice: in the ONNX ``metadata_props`` under
+``patternrl_manifest`` (without ``brain_id``, which is the sha256 of the file's
+own bytes) and as the sidecar ``<stem>.json`` beside ``<stem>.onnx`` (with
+``brain_id``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from onnx import TensorProto, helper, numpy_helper
+
+from runtime.brain import METADATA_KEY, BrainError, BrainManifest, brain_digest, sidecar_path
+from trainer.config import TrainConfig
+from trainer.networks import NORM_CLIP, Agent
+
+OPSET = 17
+IR_VERSION = 8  # readable by every onnxruntime this project supports (>= 1.17)
+
+
+class BrainFileError(ValueError):
+    """A brain file that cannot be read back as an agent; the message is one line."""
+
+
+def _linear_layers(module: torch.nn.Module, prefix: str) -> list[tuple[str, torch.nn.Linear]]:
+    return [
+        (f"{prefix}.{name}", m)
+        for name, m in module.named_modules()
+        if isinstance(m, torch.nn.Linear)
+    ]
+
+
+def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.ModelProto:
+    """The agent's deterministic action (and std) as an ONNX model with a dynamic batch axis."""
+    inits: list[TensorProto] = []
+    nodes: list[onnx.NodeProto] = []
+
+    def const(name: str, value: np.ndarray | float) -> str:
+        inits.append(numpy_helper.from_array(np.asarray(value, dtype=np.float32), name))
+        return name
+
+    def gemm(x: str, name: str, lin: torch.nn.Linear) -> str:
+        w = const(f"{name}.weight", lin.weight.detach().numpy())
+        b = const(f"{name}.bias", lin.bias.detach().numpy())
+        nodes.append(helper.make_node("Gemm", [x, w, b], [f"{name}.out"], transB=1, name=name))
+        return f"{name}.out"
+
+    def unary(op: str, x: str, name: str) -> str:
+        nodes.append(helper.make_node(op, [x], [name], name=name))
+        return name
+
+    def chain(x: str, layers: list[tuple[str, torch.nn.Linear]], relu_last: bool) -> str:
+        for i, (name, lin) in enumerate(layers):
+            x = gemm(x, name, lin)
+            if i < len(layers) - 1 or relu_last:
+                x = unary("Relu", x, f"{name}.relu")
+        return x
+
+    norm = agent.normaliser
+    shift = const("normaliser.shift", norm.shift.numpy())
+    scale = const("normaliser.scale", norm.scale.numpy())
+    lo, hi = const("normaliser.clip_lo", -NORM_CLIP), const("normaliser.clip_hi", NORM_CLIP)
+    nodes += [
+        helper.make_node("Sub", ["obs", shift], ["norm.centred"], name="norm.sub"),
+        helper.make_node("Mul", ["norm.centred", scale], ["norm.scaled"], name="norm.mul"),
+        helper.make_node("Clip", ["norm.scaled", lo, hi], ["norm.out"], name="norm.clip"),
+    ]
+    x = "norm.out"
+    if agent.decoder is not None:
+        x = chain(x, _linear_layers(agent.encoder, "encoder"), relu_last=False)
+    x = chain(x, _linear_layers(agent.policy.trunk, "policy.trunk"), relu_last=True)
+    v_max = const("v_max", agent.v_max_mps)
+    mean = unary("Tanh", gemm(x, "policy.mean_head", agent.policy.mean_head), "mean.tanh")
+    nodes.append(helper.make_node("Mul", [mean, v_max], ["action"], name="action"))
+    sp = unary("Softplus", gemm(x, "policy.std_head", agent.policy.std_head), "std.softplus")
+    min_std = const("policy.min_std", agent.policy.min_std)
+    nodes.append(helper.make_node("Add", [sp, min_std], ["std.floor"], name="std.floor"))
+    nodes.append(helper.make_node("Mul", ["std.floor", v_max], ["std"], name="std"))
+
+    graph = helper.make_graph(
+        nodes,
+        "patternrl_brain",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", agent.obs_dim])],
+        [
+            helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2]),
+            helper.make_tensor_value_info("std", TensorProto.FLOAT, ["batch", 2]),
+        ],
+        initializer=inits,
+    )
+    model = helper.make_model(
+        graph,
+        opset_imports=[helper.make_opsetid("", OPSET)],
+        producer_name="patternrl-trainer",
+        doc_string="Pattern-RL brain: raw observation -> velocity (m/s) and its std.",
+    )
+    model.ir_version = IR_VERSION
+    for key, value in (metadata or {}).items():
+        model.metadata_props.append(onnx.StringStringEntryProto(key=key, value=value))
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def write_brain(agent: Agent, path: str | Path, manifest: BrainManifest) -> BrainManifest:
+    """Write ``path`` (.onnx) and its sidecar ``<stem>.json``; return the manifest with its id.
+
+    The ONNX metadata gets the manifest without ``brain_id`` (the digest of the
+    very bytes it sits in); the sidecar gets it with.
+    """
+    out = Path(path)
+    manifest.file = out.name
+    manifest.brain_id = ""
+    body = manifest.to_json(with_id=False, indent=None)
+    model = build_onnx(agent, {METADATA_KEY: body})
+    data = model.SerializeToString()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(data)
+    manifest.brain_id = brain_digest(data)
+    sidecar_path(out).write_text(manifest.to_json(with_id=True) + "\n")
+    return manifest
+
+
+def read_manifest(path: str | Path) -> BrainManifest:
+    """The manifest embedded in an ONNX brain, ``brain_id`` recomputed from its bytes."""
+    try:
+        data = Path(path).read_bytes()
+        model = onnx.load_from_string(data)
+    except Exception as e:  # onnx raises DecodeError and friends
+        raise BrainFileError(f"cannot read brain {path}: {e}") from None
+    props = {p.key: p.value for p in model.metadata_props}
+    if METADATA_KEY not in props:
+        raise BrainFileError(f"{path} is not a Pattern-RL brain (no {METADATA_KEY} metadata)")
+    try:
+        manifest = BrainManifest.from_json(props[METADATA_KEY])
+    except BrainError as e:
+        raise BrainFileError(f"{path}: {e}") from None
+    manifest.brain_id = brain_digest(data)
+    return manifest
+
+
+def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Agent:
+    """Rebuild an agent from a brain's initializers (the value network starts fresh).
+
+    The brain decides the architecture: with encoder weights it is a Pattern-RL
+    agent, without them a PPO agent; ``cfg.algo`` must agree.
+    """
+    try:
+        model = onnx.load(str(path))
+    except Exception as e:  # onnx raises DecodeError and friends
+        raise BrainFileError(f"cannot read brain {path}: {str(e).splitlines()[0][:200]}") from None
+    w = {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in model.graph.initializer}
+    if "normaliser.shift" not in w or "policy.mean_head.weight" not in w:
+        raise BrainFileError(f"{path} is not a Pattern-RL brain (unknown layout)")
+    has_ae = "encoder.0.weight" in w
+    if has_ae != cfg.uses_autoencoder:
+        kind = "pattern-rl" if has_ae else "ppo"
+        raise BrainFileError(f"{path} is a {kind} brain; train it with --algo {kind}")
+    obs_dim = int(w["normaliser.shift"].numel())
+    if has_ae:
+        cfg = cfg.with_(
+            latent_dim=int(w["encoder.2.weight"].shape[0]),
+            ae_hidden=int(w["encoder.0.weight"].shape[0]),
+        )
+    agent = Agent(obs_dim, cfg, v_max_mps)
+    state = agent.state_dict()
+    for key, value in w.items():
+        if key in state and state[key].shape == value.shape:
+            state[key] = value
+    agent.load_state_dict(state)
+    agent.policy.min_std = float(w["policy.min_std"])
+    # the normaliser's statistics, from its constants, with a moderate weight so fine-tuning adapts
+    scale = w["normaliser.scale"].double()
+    agent.normaliser.mean64.copy_(w["normaliser.shift"].double())
+    agent.normaliser.var64.copy_((1.0 / scale) ** 2)
+    agent.normaliser.count.fill_(1e5)
+    agent.normaliser.shift.copy_(w["normaliser.shift"])
+    agent.normaliser.scale.copy_(w["normaliser.scale"])
+    return agent
