@@ -33,10 +33,11 @@ Step (``BatchWorld.step``), in order
     4. **Shared assignment**, solved once per step and used for reward,
        termination and observation alike: ``assign_slots_batch(previous=...)``
        (centred, error-optimal, with hysteresis). Before calling scipy the
-       world proves, for all envs at once, that the previous assignment is
-       still optimal (no negative cycle among slot swaps, Bellman-Ford in
-       numpy over the batch); only envs where that proof fails go to the
-       solver. The result is identical to calling ``assign_slots_batch`` on
+       world proves, for all envs at once, that the solver would keep the
+       previous assignment (no cycle of slot exchanges beats it by the
+       hysteresis margin: Bellman-Ford in numpy over the batch, see
+       :func:`previous_assignment_kept`); only envs where that proof fails go
+       to the solver. The result is identical to calling ``assign_slots_batch`` on
        every env (tested), at a fraction of the cost.
     5. **Reward**, per robot, paper eq. 6 plus two documented extras::
 
@@ -118,6 +119,7 @@ from numpy.typing import NDArray
 
 from runtime.formation import (
     HYSTERESIS_ABS_M2,
+    HYSTERESIS_REL,
     assign_slots_batch,
     lower_bounds,
     slot_positions,
@@ -147,9 +149,6 @@ their centroid needs a median of 19 plain Jacobi sweeps (99th percentile 31) but
 6 (99th percentile 9, never more than 12) over-relaxed; an isolated pair is
 resolved by the first, plain sweep to exactly 2R."""
 
-_OPTIMAL_TOL_M2 = 1e-10
-"""Bellman-Ford relaxation tolerance; N * this stays far below the hysteresis margin."""
-assert _OPTIMAL_TOL_M2 * 1000 < HYSTERESIS_ABS_M2
 
 _MAX_START_DRAWS = 10_000
 
@@ -209,38 +208,46 @@ def _pattern_list(patterns: Sequence[str | Path] | str | Path) -> tuple[str, ...
     return names
 
 
-def previous_still_optimal(P: Array, C: Array, previous: IntArray) -> BoolArray:
-    """Per env, whether ``previous`` is still an optimal assignment of P to C, (E,).
+def previous_assignment_kept(P: Array, C: Array, previous: IntArray) -> BoolArray:
+    """Per env, whether ``assign_slots_batch(P, C, previous)`` surely returns ``previous``, (E,).
 
-    An assignment is optimal iff no cyclic exchange of slots lowers the summed
-    squared distance, i.e. the "robot i takes robot j's slot" graph with
-    weights ``cost[i, slot_j] - cost[i, slot_i]`` has no negative cycle.
-    Bellman-Ford from a virtual source, vectorised over envs, finds one in at
-    most N sweeps. False means "not proven" (the caller then solves exactly);
-    True is exact up to ``N * _OPTIMAL_TOL_M2`` m^2, far inside the hysteresis
-    margin, so keeping ``previous`` there is what ``assign_slots_batch`` does.
+    The solver keeps ``previous`` unless the optimum beats it by more than the
+    hysteresis margin ``m = HYSTERESIS_REL * old + HYSTERESIS_ABS_M2``. Any
+    other assignment differs from ``previous`` by disjoint cycles of slot
+    exchanges ("robot i takes robot j's slot", weight
+    ``cost[i, slot_j] - cost[i, slot_i]``), at most N robots in all. Bellman-Ford
+    from a virtual source (vectorised over envs) that settles with no
+    relaxation larger than ``m / (2N)`` proves every cycle of L robots weighs
+    at least ``-L m / (2N)``, so no assignment beats ``previous`` by more than
+    ``m / 2``: the solver would keep it. False means "not proven" (the caller
+    solves those envs exactly), so the result always equals the solver's.
     """
-    n = P.shape[1]
+    E, n = P.shape[0], P.shape[1]
     Pc = P - P.mean(axis=1, keepdims=True)
     Q = np.take_along_axis(C, previous[..., None], axis=1)  # Q[e, j]: robot j's slot point
     Q = Q - Q.mean(axis=1, keepdims=True)
     q2 = np.einsum("eik,eik->ei", Q, Q)
     PQ = Pc @ Q.transpose(0, 2, 1)  # PQ[e, i, j] = Pc_i . Q_j
     own = np.einsum("eii->ei", PQ)
-    # |Pc_i - Q_j|^2 - |Pc_i - Q_i|^2
+    # W[e, i, j] = |Pc_i - Q_j|^2 - |Pc_i - Q_i|^2
     W = (q2[:, None, :] - q2[:, :, None]) - 2.0 * (PQ - own[:, :, None])
-    d = W.min(axis=1)  # after one sweep from the virtual source (d = 0)
-    np.minimum(d, 0.0, out=d)
-    changed = np.ones(P.shape[0], dtype=bool)
+    gap = Pc - Q
+    old = np.einsum("eik,eik->e", gap, gap)
+    tol = (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2) / (2.0 * n)
+    kept = np.zeros(E, dtype=bool)
+    active = np.arange(E)
+    d = np.minimum(W.min(axis=1), 0.0)  # one sweep from the virtual source (d = 0)
     for _ in range(n):
         nd = (d[:, :, None] + W).min(axis=1)
-        step_changed = (nd < d - _OPTIMAL_TOL_M2).any(axis=1)
-        changed &= step_changed
-        if not changed.any():
+        moving = (nd < d - tol[:, None]).any(axis=1)
+        kept[active[~moving]] = True
+        if moving.all():
+            d = nd
+            continue
+        if not moving.any():
             break
-        np.minimum(d, nd, out=d)
-    out: BoolArray = ~changed
-    return out
+        active, d, W, tol = active[moving], nd[moving], W[moving], tol[moving]
+    return kept
 
 
 class BatchWorld:
@@ -356,8 +363,6 @@ class BatchWorld:
         ids = np.arange(self.n_envs)
         for e in ids:
             self._draw_pattern(int(e))
-        self.frames[:, 1] = self.frames[:, 0]
-        self.frames[:, 2] = self.frames[:, 0]
         self._begin_episodes(ids)
         if self.build_obs:
             self._obs = self._observe(ids)
@@ -407,7 +412,32 @@ class BatchWorld:
             fresh = self._spawn_rngs(seed)
             for e in ids:
                 self._rngs[int(e)] = fresh[int(e)]
+        self.frames = self.frames.copy()  # leave views handed out before as they were
         self._reset_envs(ids)
+        if self.build_obs:
+            obs = self._obs.copy()
+            obs[ids] = self._observe(ids)
+            self._obs = obs
+        return self._obs
+
+    def reset_to(
+        self, positions: NDArray[np.floating], env_ids: NDArray[np.integer] | None = None
+    ) -> F32Array:
+        """Start new episodes in ``env_ids`` from given positions (k, N, 2) (scripted scenarios).
+
+        The envs keep their current patterns; their generators are not used.
+        Returns obs (E, N, D).
+        """
+        ids = (
+            np.arange(self.n_envs)
+            if env_ids is None
+            else np.asarray(env_ids, dtype=np.int64).reshape(-1)
+        )
+        P = np.asarray(positions, dtype=np.float64).reshape(len(ids), self.n_robots, 2)
+        frames = self.frames.copy()
+        frames[ids] = P[:, None]
+        self.frames = frames
+        self._begin_episodes(ids)
         if self.build_obs:
             obs = self._obs.copy()
             obs[ids] = self._observe(ids)
@@ -540,7 +570,7 @@ class BatchWorld:
 
     def _assign(self, P: Array) -> IntArray:
         """The shared assignment, hysteresis included, solving only where it may have changed."""
-        keep = previous_still_optimal(P, self.pattern, self.slots)
+        keep = previous_assignment_kept(P, self.pattern, self.slots)
         slots = self.slots.copy()
         redo = np.flatnonzero(~keep)
         if len(redo):
@@ -636,5 +666,5 @@ __all__ = [
     "EpisodeStats",
     "RewardConfig",
     "StepResult",
-    "previous_still_optimal",
+    "previous_assignment_kept",
 ]

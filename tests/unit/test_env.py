@@ -1,0 +1,88 @@
+"""The PettingZoo ParallelEnv (trainer/env.py): conformance and behaviour."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+from runtime.world import DEFAULT_WORLD
+from trainer.env import PatternFormationEnv, parallel_env
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {},
+        {"obs": "paper", "n_robots": 6, "pattern": "circle"},
+        {"pattern": ["line", "cross", "random"], "n_robots": 7, "step_limit": 30},
+    ],
+)
+def test_pettingzoo_parallel_api(kw: dict[str, object]) -> None:
+    parallel_api_test(parallel_env(**kw), num_cycles=500)  # type: ignore[arg-type]
+
+
+def test_pettingzoo_seed() -> None:
+    parallel_seed_test(lambda: parallel_env(seed=3), num_cycles=100)
+    parallel_seed_test(lambda: parallel_env(obs="paper", n_robots=5), num_cycles=100)
+
+
+def test_spaces_and_agents() -> None:
+    env = parallel_env(n_robots=4)
+    assert env.possible_agents == ["robot_0", "robot_1", "robot_2", "robot_3"]
+    obs, infos = env.reset(seed=1)
+    assert env.agents == env.possible_agents and set(infos) == set(env.agents)
+    space = env.observation_space("robot_0")
+    assert space.shape == (36,) and space.dtype == np.float32
+    assert all(space.contains(o) for o in obs.values())
+    act = env.action_space("robot_2")
+    assert act.shape == (2,)
+    np.testing.assert_array_equal(act.high, [DEFAULT_WORLD.v_max_mps] * 2)
+    assert env.render_mode is None
+    with pytest.raises(ValueError):
+        PatternFormationEnv(render_mode="human")
+
+
+def test_reset_seed_reproduces_and_continues() -> None:
+    env = parallel_env(seed=0)
+    first, _ = env.reset()
+    again, _ = parallel_env(seed=0).reset(seed=0)
+    for a in first:
+        np.testing.assert_array_equal(first[a], again[a])
+    second, _ = env.reset()  # no seed: the next episode of the same sequence
+    assert not np.allclose(first["robot_0"], second["robot_0"])
+    seeded, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(seeded["robot_0"], first["robot_0"])
+
+
+def test_forming_terminates_every_agent() -> None:
+    env = parallel_env(pattern="circle", n_robots=6)
+    env.reset(seed=2)
+    world = env.world
+    for _ in range(300):
+        g = world.goals[0] - world.positions[0]
+        step = g / np.maximum(np.linalg.norm(g, axis=-1, keepdims=True), 0.1)
+        actions = {a: step[i] for i, a in enumerate(env.agents)}
+        obs, rew, term, trunc, info = env.step(actions)
+        if not env.agents:
+            break
+    assert all(term.values()) and not any(trunc.values())
+    assert set(obs) == set(rew) == set(info) == set(env.possible_agents)
+    assert all(i["formed"] for i in info.values())
+    assert info["robot_0"]["formation_error"] <= DEFAULT_WORLD.formed_tol_m
+    with pytest.raises(RuntimeError):
+        env.step({})
+
+
+def test_truncation_and_missing_actions_hold_still() -> None:
+    env = parallel_env(step_limit=3)
+    env.reset(seed=0)
+    start = env.state().copy()
+    obs, rew, term, trunc, _ = env.step({})  # nobody acts: everybody holds still
+    np.testing.assert_array_equal(env.state(), start)
+    for _ in range(2):
+        obs, rew, term, trunc, _ = env.step({})
+    assert all(np.all(o[4:6] == 0.0) for o in obs.values())  # the last obs: no velocity
+    assert all(trunc.values()) and not any(term.values())
+    assert env.agents == []
+    assert all(r == pytest.approx(env.world.reward_config.step_penalty) for r in rew.values())
