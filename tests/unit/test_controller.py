@@ -1,0 +1,275 @@
+"""The per-robot controller and the batch decision path."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+from typing import Any
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from test_brain import mlp_model  # tests/unit is on sys.path (pytest rootdir mode)
+
+from runtime import controller as ctl
+from runtime import formation
+from runtime.brain import BrainManifest, RuleBrain, validate_brain_bytes
+from runtime.controller import Controller, decide_batch, safety_neighbours
+from runtime.formation import assign_slots, formation_error, slot_positions
+from runtime.observation import ObservationSpec, general_observation_one, paper_observation
+from runtime.patterns import make_pattern
+from runtime.safety import OrcaParams
+from runtime.world import DEFAULT_WORLD
+
+W = DEFAULT_WORLD
+
+
+class ConstBrain:
+    """Answers the same velocity for every robot (or raises)."""
+
+    def __init__(self, v: tuple[float, float], spec: ObservationSpec | None = None) -> None:
+        self.brain_id = f"const:{v}"
+        self.spec = spec or ObservationSpec("general")
+        self.manifest: BrainManifest | None = None
+        self.v = v
+
+    def act(self, obs: NDArray[Any]) -> NDArray[np.float64]:
+        if self.v == (-1.0, -1.0):
+            raise RuntimeError("broken brain")
+        return np.tile(np.array(self.v, dtype=np.float64), (len(obs), 1))
+
+
+def onnx_brain(spec: ObservationSpec, seed: int = 0) -> Any:
+    data = mlp_model(spec.dim, hidden=(32, 32), seed=seed).SerializeToString()
+    digest = hashlib.sha256(data).hexdigest()
+    return validate_brain_bytes(data, BrainManifest(observation=spec), digest)
+
+
+def spread(n: int, rng: np.random.Generator, side: float = 3.0) -> NDArray[np.float64]:
+    """n positions at least 2.5R apart."""
+    pts: list[NDArray[np.float64]] = []
+    while len(pts) < n:
+        p = rng.uniform(0, side, 2)
+        if all(np.linalg.norm(p - q) >= W.start_separation_m for q in pts):
+            pts.append(p)
+    return np.array(pts)
+
+
+def run_team(
+    n: int, pattern: str, steps: int, safety: OrcaParams | None, seed: int = 0
+) -> tuple[NDArray[np.float64], list[NDArray[np.float64]], NDArray[np.float64]]:
+    rng = np.random.default_rng(seed)
+    pos = spread(n, rng)
+    C = make_pattern(pattern, n)
+    ctrls = [Controller(RuleBrain(), W, safety) for _ in range(n)]
+    track = [pos]
+    for t in range(steps):
+        v = np.array([ctrls[i].decide(i, pos, C, t).velocity for i in range(n)])
+        pos = pos + W.dt_s * v
+        track.append(pos)
+    return pos, track, C
+
+
+# ----------------------------------------------------------------------- rule brain
+
+
+def test_rule_brain_drives_straight_to_its_slot_and_stops() -> None:
+    n = 6
+    rng = np.random.default_rng(1)
+    pos = spread(n, rng)
+    C = make_pattern("circle", n)
+    _, min_steps = formation.lower_bounds(pos, C)
+    ctrls = [Controller(RuleBrain(), W, None) for _ in range(n)]
+    formed_at = None
+    for t in range(80):
+        ds = [ctrls[i].decide(i, pos, C, t) for i in range(n)]
+        slots = np.array([d.slot for d in ds])
+        sv = slot_positions(pos, C, slots) - pos
+        want = sv / W.dt_s
+        sp = np.linalg.norm(want, axis=1, keepdims=True)
+        want = np.where(sp > W.v_max_mps, want * W.v_max_mps / np.maximum(sp, 1e-300), want)
+        v = np.array([d.velocity for d in ds])
+        np.testing.assert_allclose(v, want, atol=1e-12)  # straight at its slot, <= v_max
+        assert np.linalg.norm(v, axis=1).max() <= W.v_max_mps
+        pos = pos + W.dt_s * v
+        if formed_at is None and formation_error(pos, C) < 1e-9:
+            formed_at = t + 1
+        if formed_at is not None and t >= formed_at + 3:
+            assert np.all(v == 0.0)  # parked: exactly still
+    assert formed_at is not None and formed_at <= 1.1 * min_steps + 2
+
+
+def test_rule_brain_with_safety_forms_without_collisions() -> None:
+    n = 8
+    pos, track, C = run_team(n, "cross", 120, safety=OrcaParams(), seed=3)
+    assert formation_error(pos, C) < W.formed_tol_m
+    for a, b in itertools.pairwise(track):
+        assert formation.collision_pairs(a, b) == []
+
+
+# ------------------------------------------------------------------------ contract
+
+
+def test_clamps_to_v_max() -> None:
+    rng = np.random.default_rng(0)
+    pos = spread(5, rng)
+    C = make_pattern("circle", 5)
+    for safety in (None, OrcaParams()):
+        c = Controller(ConstBrain((30.0, -40.0)), W, safety)
+        d = c.decide(0, pos, C, 0)
+        assert np.hypot(*d.velocity) <= W.v_max_mps
+        assert d.brain_velocity == (30.0, -40.0)
+        assert not d.error
+
+
+@pytest.mark.parametrize("v", [(np.nan, 0.0), (0.0, np.inf), (-1.0, -1.0)])
+def test_bad_brain_output_holds_still(v: tuple[float, float]) -> None:
+    rng = np.random.default_rng(0)
+    pos = spread(4, rng)
+    c = Controller(ConstBrain(v), W)
+    d = c.decide(1, pos, make_pattern("line", 4), 0)
+    assert d.velocity == (0.0, 0.0) and d.error
+    if v != (-1.0, -1.0):  # the batch path holds a non-finite robot still too
+        frames = np.stack([pos, pos, pos])[None]
+        vel, _, changed = decide_batch(ConstBrain(v), frames, make_pattern("line", 4))
+        assert np.all(vel == 0.0) and not changed.any()
+
+
+def test_team_size_change_resets_history_and_slots() -> None:
+    rng = np.random.default_rng(2)
+    pos = spread(5, rng)
+    c = Controller(RuleBrain(), W, None)
+    c.decide(0, pos, make_pattern("circle", 5), 0)
+    c.decide(0, pos + 0.05, make_pattern("circle", 5), 1)
+    assert c.previous_slots is not None and len(c.previous_slots) == 5
+    d = c.decide(0, pos[:4], make_pattern("circle", 4), 2)
+    assert c.previous_slots is not None and len(c.previous_slots) == 4
+    # fresh history: the velocity estimate in the observation is zero again
+    assert not d.error
+
+
+def test_wrong_pattern_size_or_paper_team_holds_still() -> None:
+    rng = np.random.default_rng(2)
+    pos = spread(5, rng)
+    d = Controller(RuleBrain(), W).decide(0, pos, make_pattern("circle", 4), 0)
+    assert d.velocity == (0.0, 0.0) and d.error
+    paper = ConstBrain((0.1, 0.0), ObservationSpec("paper", n_robots=4))
+    d = Controller(paper, W).decide(0, pos, make_pattern("circle", 5), 0)
+    assert d.velocity == (0.0, 0.0) and d.error
+
+
+def test_set_brain_takes_effect_next_decision() -> None:
+    rng = np.random.default_rng(4)
+    pos = spread(3, rng) * 3
+    C = make_pattern("line", 3)
+    c = Controller(RuleBrain(), W, None)
+    a = c.decide(0, pos, C, 0)
+    c.set_brain(ConstBrain((0.25, 0.0)))
+    b = c.decide(0, pos, C, 1)
+    assert a.velocity != b.velocity and b.velocity == (0.25, 0.0)
+    assert c.brain.brain_id.startswith("const:")
+
+
+# ------------------------------------------------------- single path == shared builders
+
+
+def test_hysteresis_constants_match_formation() -> None:
+    assert ctl.HYSTERESIS_REL == formation.HYSTERESIS_REL
+    assert ctl.HYSTERESIS_ABS_M2 == formation.HYSTERESIS_ABS_M2
+
+
+def test_single_path_assignment_and_observation_match_the_builders() -> None:
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        n = int(rng.integers(2, 14))
+        k = int(rng.integers(1, 8))
+        C = make_pattern("heart" if trial % 2 else "circle", n)
+        c = Controller(RuleBrain(k_neighbours=k), W, None)
+        prev_slots = None
+        pos = spread(n, rng)
+        last = pos
+        for t in range(4):
+            i = int(rng.integers(0, n))
+            c.decide(i, pos, C, t)
+            ref = assign_slots(pos, C, prev_slots)
+            assert c.previous_slots is not None
+            np.testing.assert_array_equal(c.previous_slots, ref)
+            prev_slots = ref
+            vel = [
+                [(a[0] - b[0]) / W.dt_s, (a[1] - b[1]) / W.dt_s]
+                for a, b in zip(pos.tolist(), last.tolist(), strict=True)
+            ]
+            slot = int(ref[i])
+            mine = c._general_one(i, pos.tolist(), vel, slot, k)[0]
+            want = general_observation_one(i, pos, last, slot_positions(pos, C, ref)[i], k, W)
+            np.testing.assert_array_equal(mine, want)
+            last, pos = pos, pos + rng.uniform(-0.1, 0.1, pos.shape)
+
+
+def test_paper_one_matches_paper_observation() -> None:
+    rng = np.random.default_rng(8)
+    for n in (2, 3, 7, 10):
+        frames = rng.uniform(0, 2, (3, n, 2))
+        full = paper_observation(frames)
+        for i in range(n):
+            np.testing.assert_array_equal(ctl._paper_one(i, list(frames))[0], full[i])
+
+
+def test_safety_neighbours_single_equals_batch_rows() -> None:
+    rng = np.random.default_rng(9)
+    pos, prev = rng.uniform(0, 3, (2, 3, 6, 2))
+    own, rel, nbv = safety_neighbours(pos, prev, W.dt_s)
+    for e in range(3):
+        for i in range(6):
+            o1, r1, v1 = safety_neighbours(pos[e], prev[e], W.dt_s, index=i)
+            np.testing.assert_array_equal(o1, own[e, i])
+            np.testing.assert_array_equal(r1, rel[e, i])
+            np.testing.assert_array_equal(v1, nbv[e, i])
+
+
+@pytest.mark.parametrize("kind", ["rule", "onnx-general", "onnx-paper"])
+@pytest.mark.parametrize("safety", [None, OrcaParams()])
+def test_single_and_batch_paths_agree(kind: str, safety: OrcaParams | None) -> None:
+    rng = np.random.default_rng(11)
+    n, E, T = 6, 3, 5
+    if kind == "rule":
+        brain: Any = RuleBrain()
+    elif kind == "onnx-general":
+        brain = onnx_brain(ObservationSpec("general"))
+    else:
+        brain = onnx_brain(ObservationSpec("paper", n_robots=n))
+    C = make_pattern("circle", n)
+    # E teams, each a random walk of T steps (close enough for the filter to act)
+    walks = []
+    for _ in range(E):
+        p = spread(n, rng, side=1.2)
+        w = [p]
+        for _ in range(T - 1):
+            w.append(w[-1] + rng.uniform(-0.08, 0.08, p.shape))
+        walks.append(np.array(w))
+    walks_a = np.array(walks)  # (E, T, n, 2)
+    ctrls = [[Controller(brain, W, safety) for _ in range(n)] for _ in range(E)]
+    prev_slots = None
+    changed_any = False
+    for t in range(T):
+        frames = np.stack([walks_a[:, max(t - j, 0)] for j in range(3)], axis=1)  # (E,3,n,2)
+        vel, slots, changed = decide_batch(brain, frames, C, prev_slots, safety, W)
+        prev_slots = slots
+        changed_any |= bool(changed.any())
+        for e in range(E):
+            for i in range(n):
+                d = ctrls[e][i].decide(i, walks_a[e, t], C, t)
+                assert d.slot == slots[e, i]
+                np.testing.assert_allclose(d.velocity, vel[e, i], rtol=1e-6, atol=1e-6)
+                assert d.safety_changed == changed[e, i]
+    if safety is not None:
+        assert changed_any  # the comparison covered filtered decisions too
+
+
+def test_decision_reports_latency_and_filter() -> None:
+    rng = np.random.default_rng(5)
+    pos = spread(10, rng, side=1.5)
+    c = Controller(ConstBrain((1.0, 0.0)), W)
+    d = c.decide(0, pos, make_pattern("circle", 10), 0)
+    assert 0.0 < d.decision_us < 1e6
+    assert d.safety_change_mps >= 0.0
