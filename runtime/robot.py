@@ -319,8 +319,8 @@ class Robot:
         except MessageError as e:
             self._drop("pattern", str(e))
             return
-        if len(msg.points) < 1:
-            self._drop("pattern", "no points")
+        if len(msg.points) < 2 or min_spacing(msg.points) < self.world.min_separation_m:
+            self._drop("pattern", f"'{msg.name}' has fewer than 2 points or points closer than 2R")
             return
         with self._cond:
             old = self._pattern_msg

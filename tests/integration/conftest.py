@@ -1,0 +1,352 @@
+"""A small test world over real Zenoh on loopback, and robot processes to drive.
+
+``StubWorld`` plays the world's side of the wire contract (DESIGN.md section 3):
+it listens on ``tcp/127.0.0.1:<free port>``, declares the world's liveliness
+token, publishes every robot's pose per step with ``n_live``, the swarm's
+pattern, and collects commands and statuses. ``RobotProc`` starts
+``python -m patternrl.cli robot ...`` connected to it. Everything waits on
+conditions with timeouts; nothing sleeps a fixed time.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+
+from runtime import keys
+from runtime.messages import (
+    Command,
+    MessageError,
+    PatternMsg,
+    Pose,
+    Status,
+    decode_command,
+    decode_status,
+    encode_pattern,
+    encode_pose,
+)
+from runtime.patterns import make_pattern
+from runtime.world import DEFAULT_WORLD
+from runtime.zenoh_session import open_session
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for(cond: Callable[[], Any], timeout: float, what: str, poll: float = 0.01) -> Any:
+    """Poll ``cond`` until truthy (returned) or fail the test after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        v = cond()
+        if v:
+            return v
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(poll)
+
+
+class StubWorld:
+    """The world's side of the protocol, driven step by step from a test."""
+
+    def __init__(self, swarm: str, port: int | None = None) -> None:
+        self.swarm = swarm
+        self.port = port if port is not None else free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.session = open_session("peer", connect=[], listen=[self.endpoint])
+        self.cond = threading.Condition()
+        self.cmds: dict[int, dict[int, Command]] = defaultdict(dict)  # step -> robot -> cmd
+        self.cmd_times: dict[tuple[int, int], float] = {}
+        self.status: dict[int, list[Status]] = defaultdict(list)
+        self.alive: set[int] = set()
+        self.bad_cmds = 0
+        self.pose_times: dict[int, float] = {}
+        self._decls: list[Any] = [
+            self.session.declare_subscriber(keys.all_cmds(swarm), self._on_cmd),
+            self.session.declare_subscriber(keys.all_status(swarm), self._on_status),
+            self.session.liveliness().declare_subscriber(
+                keys.all_alive(swarm), self._on_alive, history=True
+            ),
+            self.session.liveliness().declare_token(keys.alive_key(swarm, keys.WORLD_ID)),
+        ]
+        self._pubs: dict[int, Any] = {}
+        self.pattern_version = 0
+
+    # -- callbacks
+    def _on_cmd(self, sample: zenoh.Sample) -> None:
+        now = time.monotonic()
+        try:
+            c = decode_command(sample.payload.to_bytes())
+        except MessageError:
+            with self.cond:
+                self.bad_cmds += 1
+            return
+        with self.cond:
+            self.cmds[c.step][c.robot_id] = c
+            self.cmd_times.setdefault((c.step, c.robot_id), now)
+            self.cond.notify_all()
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            st = decode_status(sample.payload.to_bytes())
+        except MessageError:
+            return
+        with self.cond:
+            self.status[st.robot_id].append(st)
+            self.cond.notify_all()
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        rid = keys.parse_robot_id(str(sample.key_expr))
+        if rid is None:
+            return
+        with self.cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(rid)
+            else:
+                self.alive.discard(rid)
+            self.cond.notify_all()
+
+    # -- publishing
+    def publish_pattern(self, name: str, n: int) -> np.ndarray:
+        pts = make_pattern(name, n)
+        self.pattern_version += 1
+        msg = PatternMsg(self.pattern_version, name, pts, DEFAULT_WORLD.formed_tol_m)
+        self.session.put(keys.pattern_key(self.swarm), encode_pattern(msg))
+        return pts
+
+    def publish_poses(self, step: int, pos: np.ndarray, ids: list[int] | None = None) -> None:
+        ids = list(range(len(pos))) if ids is None else ids
+        t = time.monotonic()
+        with self.cond:
+            self.pose_times[step] = t
+        for rid, (x, y) in zip(ids, pos.tolist(), strict=True):
+            pub = self._pubs.get(rid)
+            if pub is None:
+                pub = self._pubs[rid] = self.session.declare_publisher(
+                    keys.pose_key(self.swarm, rid), express=True
+                )
+            pub.put(encode_pose(Pose(rid, step, t, x, y, 0.0, 0.0, len(ids))))
+
+    def put_raw(self, key: str, payload: bytes) -> None:
+        self.session.put(key, payload)
+
+    # -- waiting
+    def wait(self, pred: Callable[[], Any], timeout: float, what: str) -> Any:
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while True:
+                v = pred()
+                if v:
+                    return v
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+                self.cond.wait(left)
+
+    def wait_alive(self, ids: set[int], timeout: float = 20.0) -> None:
+        self.wait(lambda: ids <= self.alive, timeout, f"robots {sorted(ids)} alive")
+
+    def wait_cmds(self, step: int, ids: list[int], timeout: float = 5.0) -> dict[int, Command]:
+        self.wait(lambda: set(ids) <= set(self.cmds[step]), timeout, f"commands of step {step}")
+        with self.cond:
+            return dict(self.cmds[step])
+
+    def wait_status(
+        self, rid: int, pred: Callable[[Status], bool], timeout: float, what: str
+    ) -> Status:
+        def find() -> Status | None:
+            for st in reversed(self.status[rid]):
+                if pred(st):
+                    return st
+            return None
+
+        st: Status = self.wait(find, timeout, what)
+        return st
+
+    def lockstep(
+        self, pos: np.ndarray, step: int, ids: list[int] | None = None, timeout: float = 5.0
+    ) -> tuple[np.ndarray, dict[int, Command]]:
+        """Publish the poses of ``step``, wait for every command of it, move the robots."""
+        ids = list(range(len(pos))) if ids is None else ids
+        self.publish_poses(step, pos, ids)
+        cmds = self.wait_cmds(step, ids, timeout)
+        v = np.array([[cmds[i].vx, cmds[i].vy] for i in ids])
+        return pos + DEFAULT_WORLD.dt_s * v, cmds
+
+    def close(self) -> None:
+        for d in reversed(self._decls + list(self._pubs.values())):
+            try:
+                d.undeclare()
+            except Exception:
+                pass
+        self.session.close()
+
+
+class RobotProc:
+    """``python -m patternrl.cli robot ...`` as a child process."""
+
+    def __init__(self, world: StubWorld, rid: int, brain: str, *extra: str) -> None:
+        self.rid = rid
+        cmd = [
+            sys.executable,
+            "-m",
+            "patternrl.cli",
+            "robot",
+            "--swarm",
+            world.swarm,
+            "--id",
+            str(rid),
+            "--brain",
+            brain,
+            "--connect",
+            world.endpoint,
+            "--listen",
+            "tcp/127.0.0.1:0",
+            *extra,
+        ]
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.t_start = time.monotonic()
+        self.proc = subprocess.Popen(
+            cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+
+    def interrupt(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+
+    def finish(self, timeout: float = 10.0) -> tuple[int, str, str]:
+        try:
+            out, err = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            out, err = self.proc.communicate()
+            raise AssertionError(f"robot {self.rid} did not exit in {timeout} s: {err}") from None
+        return self.proc.returncode, out, err
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
+
+@pytest.fixture
+def world(request: pytest.FixtureRequest) -> Iterator[StubWorld]:
+    name = "t" + re.sub(r"[^A-Za-z0-9_]", "_", request.node.name)[:40]
+    w = StubWorld(name)
+    try:
+        yield w
+    finally:
+        w.close()
+
+
+@pytest.fixture
+def robots() -> Iterator[list[RobotProc]]:
+    procs: list[RobotProc] = []
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.interrupt()
+        for p in procs:
+            try:
+                p.finish(timeout=5.0)
+            except AssertionError:
+                p.kill()
+
+
+# ------------------------------------------------------------------ test brains
+
+
+def write_test_brain(
+    tmp: Path,
+    name: str,
+    *,
+    in_dim: int | None = None,
+    nan: bool = False,
+    corrupt: bool = False,
+    wrong_digest: bool = False,
+    seed: int = 0,
+    hidden: tuple[int, ...] = (32, 32),
+    gain: float = 0.5,
+) -> Path:
+    """A general-observation MLP brain ``<name>.onnx`` with its sidecar manifest.
+
+    ``in_dim`` other than the spec's dim gives a wrong-shape brain, ``nan`` a brain
+    whose every output is NaN, ``corrupt`` truncated bytes, ``wrong_digest`` a
+    manifest naming other bytes.
+    """
+    import hashlib
+
+    from onnx import TensorProto, helper, numpy_helper
+
+    from runtime.brain import METADATA_KEY, BrainManifest
+    from runtime.observation import ObservationSpec
+
+    spec = ObservationSpec("general")
+    d = spec.dim if in_dim is None else in_dim
+    rng = np.random.default_rng(seed)
+    nodes, inits = [], []
+    prev = "obs"
+    for i, h in enumerate(hidden):
+        w = rng.normal(0, 1 / np.sqrt(d), (d, h)).astype(np.float32)
+        inits += [
+            numpy_helper.from_array(w, f"W{i}"),
+            numpy_helper.from_array(np.zeros(h, np.float32), f"b{i}"),
+        ]
+        nodes += [
+            helper.make_node("Gemm", [prev, f"W{i}", f"b{i}"], [f"g{i}"]),
+            helper.make_node("Tanh", [f"g{i}"], [f"h{i}"]),
+        ]
+        prev, d = f"h{i}", h
+    w = (rng.normal(0, 1 / np.sqrt(d), (d, 2)) * gain).astype(np.float32)
+    scale = np.array([np.nan if nan else 1.0], np.float32)
+    inits += [
+        numpy_helper.from_array(w, "Wo"),
+        numpy_helper.from_array(np.zeros(2, np.float32), "bo"),
+        numpy_helper.from_array(scale, "scale"),
+    ]
+    nodes += [
+        helper.make_node("Gemm", [prev, "Wo", "bo"], ["mean"]),
+        helper.make_node("Mul", ["mean", "scale"], ["action"]),
+    ]
+    in_d = spec.dim if in_dim is None else in_dim
+    graph = helper.make_graph(
+        nodes,
+        name,
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", in_d])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])],
+        inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    manifest = BrainManifest(observation=spec, file=f"{name}.onnx", training={"algorithm": "test"})
+    entry = model.metadata_props.add()
+    entry.key, entry.value = METADATA_KEY, manifest.to_json(with_id=False)
+    data = model.SerializeToString()
+    if corrupt:
+        data = data[: len(data) // 2]
+    path = tmp / f"{name}.onnx"
+    path.write_bytes(data)
+    manifest.brain_id = hashlib.sha256(data).hexdigest()
+    if wrong_digest:
+        manifest.brain_id = hashlib.sha256(data + b"other").hexdigest()
+    path.with_suffix(".json").write_text(manifest.to_json())
+    return path
