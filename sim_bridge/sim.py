@@ -743,6 +743,10 @@ class World:
                         break
                 if self.stop_event.is_set():
                     outcome = "interrupted"
+                if self.physics.ids:  # the final state, on the wire and on the log
+                    with self._cond:
+                        self._collect_step = -1
+                    self._publish_poses(self.physics.positions())
         finally:
             wall = time.monotonic() - t0
             self._event("run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),

@@ -1,0 +1,162 @@
+"""The trajectory figure, in the style of the paper's Fig. 6.
+
+One panel per pattern of a run: every robot's path drawn from a light to a
+saturated tint of its colour (so the direction of travel reads at a glance),
+its final position ringed with a disc of radius R, its start a small light dot,
+and the target slots (the pattern placed on the team's final centroid) as grey
+crosses. The panel title says whether the pattern formed, in how many steps,
+and the lower bound.
+
+Input is a list of :class:`PhaseTrack`, built from a log by
+:func:`phase_tracks` (so ``patternrl launch`` and a replay draw the same
+picture from the same MCAP).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from runtime.formation import centred
+from runtime.world import DEFAULT_WORLD, WorldConfig
+from sim_bridge.recorder import RecordedRun
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class PhaseTrack:
+    """The paths of one pattern's phase.
+
+    ``track`` is (T, n, 2) metres, one row per step from the phase's first pose to
+    its last, one column per robot of ``ids`` (NaN where that robot was absent).
+    ``targets`` is (m, 2): the pattern placed on the final centroid.
+    """
+
+    pattern: str
+    formed: bool
+    steps: int
+    lower_bound_steps: int
+    ids: list[int]
+    track: Array
+    targets: Array
+
+
+def phase_tracks(run: RecordedRun) -> list[PhaseTrack]:
+    """One :class:`PhaseTrack` per ``phase_end`` event of a recorded run."""
+    out = []
+    pts: Array | None = None
+    for ph in run.events:
+        if ph.get("kind") == "pattern":  # the pattern in force, in log order
+            pts = np.asarray(ph["points"], dtype=np.float64)
+        if ph.get("kind") != "phase_end":
+            continue
+        s0, s1 = int(ph["start_step"]), int(ph["end_step"])
+        steps = [s for s in range(s0, s1 + 1) if s in run.poses]
+        if not steps:
+            continue
+        ids = sorted({rid for s in steps for rid in run.poses[s]})
+        col = {rid: k for k, rid in enumerate(ids)}
+        track = np.full((len(steps), len(ids), 2), np.nan)
+        for t, s in enumerate(steps):
+            for rid, p in run.poses[s].items():
+                track[t, col[rid]] = (p.x, p.y)
+        final_ids = sorted(run.poses[steps[-1]])
+        final = np.array([[run.poses[steps[-1]][r].x, run.poses[steps[-1]][r].y]
+                          for r in final_ids])
+        targets = (centred(pts) + final.mean(axis=0)) if pts is not None and len(pts) == len(
+            final) else np.empty((0, 2))
+        out.append(PhaseTrack(str(ph["pattern"]), bool(ph["formed"]), int(ph["steps"]),
+                              int(ph["lower_bound_steps"]), ids, track, targets))
+    return out
+
+
+def _tint(rgb: tuple[float, float, float], f: float) -> tuple[float, float, float]:
+    """``rgb`` mixed with white: f = 0 is a light tint, f = 1 the full colour."""
+    light = 0.18 + 0.82 * f
+    return (1 - light + light * rgb[0], 1 - light + light * rgb[1], 1 - light + light * rgb[2])
+
+
+def draw_trajectories(
+    tracks: list[PhaseTrack],
+    out: str | Path,
+    title: str | None = None,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> Path:
+    """Draw one panel per phase into a PNG at ``out``; returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Circle
+
+    n = max(len(tracks), 1)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.4 * rows), squeeze=False)
+    cmap = plt.get_cmap("tab10")
+    r = world.radius_m
+    for ax in axes.flat[len(tracks):]:
+        ax.axis("off")
+    for ax, ph in zip(axes.flat, tracks, strict=False):
+        T = len(ph.track)
+        for k, rid in enumerate(ph.ids):
+            path = ph.track[:, k]
+            ok = ~np.isnan(path).any(axis=1)
+            p = path[ok]
+            if len(p) == 0:
+                continue
+            rgb = tuple(float(c) for c in cmap(rid % 10)[:3])
+            if len(p) > 1:
+                segs = np.stack([p[:-1], p[1:]], axis=1)
+                frac = np.linspace(0.0, 1.0, len(segs))
+                lc = LineCollection(segs, colors=[_tint(rgb, f) for f in frac],  # type: ignore[arg-type]
+                                    linewidths=1.6, capstyle="round", zorder=2)
+                ax.add_collection(lc)
+            ax.plot(*p[0], "o", ms=3, color=_tint(rgb, 0.0), zorder=3)
+            present_at_end = bool(ok[-1]) if T else False
+            ax.add_patch(Circle(tuple(p[-1]), r, fill=present_at_end, facecolor=(*rgb, 0.25),
+                                edgecolor=rgb, linewidth=1.4, linestyle="-" if present_at_end
+                                else ":", zorder=4))
+        if len(ph.targets):
+            ax.plot(ph.targets[:, 0], ph.targets[:, 1], "x", ms=5, mew=1.2, color="0.35",
+                    zorder=5, label="targets")
+        pts = ph.track[~np.isnan(ph.track).any(axis=-1)]
+        if len(ph.targets):
+            pts = np.vstack([pts, ph.targets])
+        if len(pts):
+            lo, hi = pts.min(axis=0) - 3 * r, pts.max(axis=0) + 3 * r
+            mid, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 4 * r)
+            ax.set_xlim(mid[0] - half, mid[0] + half)
+            ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_aspect("equal")
+        verdict = f"formed in {ph.steps} steps" if ph.formed else f"not formed ({ph.steps} steps)"
+        ax.set_title(f"{ph.pattern}: {verdict}\nlower bound {ph.lower_bound_steps} steps",
+                     fontsize=10)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("x (m)", fontsize=8)
+        ax.set_ylabel("y (m)", fontsize=8)
+        ax.grid(alpha=0.15)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=130, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def draw_log(log: str | Path, out: str | Path | None = None, **kw: Any) -> Path:
+    """Read an MCAP log and draw its trajectory figure (default: ``<log stem>.png`` beside it)."""
+    from sim_bridge.recorder import read_run
+
+    log = Path(log)
+    tracks = phase_tracks(read_run(log))
+    return draw_trajectories(tracks, out if out is not None else log.with_suffix(".png"), **kw)
