@@ -107,16 +107,17 @@ def draw_trajectories(
     for ax, ph in zip(axes.flat, tracks, strict=False):
         T = len(ph.track)
         for k, rid in enumerate(ph.ids):
-            path = ph.track[:, k]
-            ok = ~np.isnan(path).any(axis=1)
-            p = path[ok]
+            xy = ph.track[:, k]
+            ok = np.asarray(~np.isnan(xy).any(axis=1), dtype=bool)
+            p = xy[ok]
             if len(p) == 0:
                 continue
-            rgb = tuple(float(c) for c in cmap(rid % 10)[:3])
+            c4 = cmap(rid % 10)
+            rgb = (float(c4[0]), float(c4[1]), float(c4[2]))
             if len(p) > 1:
                 segs = np.stack([p[:-1], p[1:]], axis=1)
                 frac = np.linspace(0.0, 1.0, len(segs))
-                lc = LineCollection(segs, colors=[_tint(rgb, f) for f in frac],  # type: ignore[arg-type]
+                lc = LineCollection(list(segs), colors=[_tint(rgb, float(f)) for f in frac],
                                     linewidths=1.6, capstyle="round", zorder=2)
                 ax.add_collection(lc)
             ax.plot(*p[0], "o", ms=3, color=_tint(rgb, 0.0), zorder=3)

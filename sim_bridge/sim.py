@@ -265,14 +265,15 @@ class World:
         session: zenoh.Session,
         recorder: Recorder | None = None,
         on_progress: Callable[[Progress], None] | None = None,
-        log: Callable[[str], None] | None = None,
+        log: Callable[[str, bool], None] | None = None,
     ) -> None:
         self.cfg = cfg
         self.w = cfg.world
         self.session = session
         self.rec = recorder
         self.on_progress = on_progress
-        self.log = log or (lambda msg: print(f"sim: {msg}", file=sys.stderr, flush=True))
+        # log(message, detail): detail lines (joins at the start, swaps) matter less
+        self.log = log or (lambda msg, detail: print(f"sim: {msg}", file=sys.stderr, flush=True))
         self.stop_event = threading.Event()
         self.rng = np.random.default_rng(cfg.seed)
         self.step = 0
@@ -305,6 +306,9 @@ class World:
         self._removed_since_scene: list[int] = []
 
     # ------------------------------------------------------------------ events
+
+    def _say(self, msg: str, detail: bool = False) -> None:
+        self.log(msg, detail)
 
     def _event(self, kind: str, **fields: Any) -> None:
         if self.rec is not None:
@@ -424,7 +428,7 @@ class World:
                 self._cond.wait(min(left, 0.2))
             n = len(self._alive)
         if n < self.cfg.robots:
-            self.log(f"{n} of {self.cfg.robots} robots alive after {self.cfg.wait_robots_s:g} s")
+            self._say(f"{n} of {self.cfg.robots} robots alive after {self.cfg.wait_robots_s:g} s")
         return n >= 2 and not self.stop_event.is_set()
 
     def _place_start(self) -> None:
@@ -447,7 +451,8 @@ class World:
         )
         self._prev_pos[rid] = (x, y)
         self._event("join", robot=rid, x=round(x, 6), y=round(y, 6), n_live=len(self.physics.ids))
-        self.log(f"robot {rid} joined at ({x:.2f}, {y:.2f}); {len(self.physics.ids)} live")
+        self._say(f"robot {rid} joined at ({x:.2f}, {y:.2f}); {len(self.physics.ids)} live",
+                 self.version == 0)
 
     def _remove(self, rid: int) -> None:
         self.physics.remove_robot(rid)
@@ -457,7 +462,7 @@ class World:
         self._prev_pos.pop(rid, None)
         self._removed_since_scene.append(rid)
         self._event("leave", robot=rid, n_live=len(self.physics.ids))
-        self.log(f"robot {rid} left; {len(self.physics.ids)} live")
+        self._say(f"robot {rid} left; {len(self.physics.ids)} live")
 
     def _apply_membership(self) -> tuple[int, int]:
         """Joins and leaves since the last step: (joined, left)."""
@@ -473,7 +478,7 @@ class World:
                     avoid = self.physics.positions()
                     (x, y), = sample_starts(1, self.arena_m, self.rng, self.w, avoid=avoid)
                 except PhysicsError as e:
-                    self.log(f"robot {rid} cannot join: {e}")
+                    self._say(f"robot {rid} cannot join: {e}")
                     continue
                 self._add(rid, float(x), float(y))
                 joined += 1
@@ -499,11 +504,11 @@ class World:
         try:
             manifest_json, onnx_bytes, _ = read_brain(choice.ref)
         except BrainError as e:
-            self.log(f"cannot read brain {choice.ref}: {e}")
+            self._say(f"cannot read brain {choice.ref}: {e}")
             self._event("brain_swap", robot=None, brain=choice.label, accepted=False,
                         reason=str(e)[:200])
             return
-        self.log(f"swapping {choice.label} into {len(targets)} robot(s) for {pattern}")
+        self._say(f"swapping {choice.label} into {len(targets)} robot(s) for {pattern}", True)
         answers = swap_brain(self.session, self.cfg.swarm, manifest_json, onnx_bytes,
                              robots=targets, timeout_s=self.cfg.swap_timeout_s, discover_s=2.0)
         for rid, a in sorted(answers.items()):
@@ -515,7 +520,7 @@ class World:
                 with self._cond:
                     self._brain_of[rid] = a.new_brain
             else:
-                self.log(f"robot {rid} did not take {choice.label}: {reason}")
+                self._say(f"robot {rid} did not take {choice.label}: {reason}")
 
     # ------------------------------------------------------------------ pattern
 
@@ -617,8 +622,8 @@ class World:
                     n=len(self.physics.ids), lower_bound_steps=lb_steps,
                     lower_bound_travel_m=round(lb_travel, 6),
                     brain=choice.label if choice else "robots' own")
-        self.log(f"pattern {index + 1}/{len(cfg.patterns)}: {pattern_label(name)} with "
-                 f"{len(self.physics.ids)} robots (lower bound {lb_steps} steps)")
+        self._say(f"pattern {index + 1}/{len(cfg.patterns)}: {pattern_label(name)} with "
+                 f"{len(self.physics.ids)} robots (lower bound {lb_steps} steps)", True)
         start_step = self.step
         phase_step, travel = 0, 0.0
         collisions = contacts = misses = joins = leaves = 0
@@ -634,7 +639,7 @@ class World:
                 joins += j
                 leaves += lv
                 if len(self.physics.ids) < 2:
-                    self.log("fewer than 2 robots left: the phase cannot go on")
+                    self._say("fewer than 2 robots left: the phase cannot go on")
                     break
                 C = self._publish_pattern(name, "resize")
             elif time.monotonic() - self._pattern_sent >= cfg.pattern_republish_s:
@@ -690,7 +695,7 @@ class World:
         )
         self._event("phase_end", **asdict(result))
         verdict = "formed" if formed else "NOT formed"
-        self.log(f"{pattern_label(name)}: {verdict} in {phase_step} steps "
+        self._say(f"{pattern_label(name)}: {verdict} in {phase_step} steps "
                  f"(lower bound {lb_steps}), error {err * 1000:.1f} mm")
         return result
 

@@ -1,0 +1,331 @@
+"""``patternrl launch``: the demo. A world and one robot process per robot, on loopback.
+
+What it does:
+
+1. picks the brains: ``--brains auto`` (default) uses ``exports/`` when it has a
+   brain for every pattern of ``--patterns`` (a general one preferred, see
+   ``--brain-kind``), else ``rule:assign``; ``--brains DIR`` or ``rule:assign``
+   choose explicitly. The table says which brain ran each pattern;
+2. opens the world's Zenoh session in peer mode, listening on a free loopback
+   port, and starts ``--robots`` robot processes (``patternrl robot``) that connect
+   to it, each with the first pattern's brain; at every pattern change the world
+   swaps in the next pattern's brain where it differs (paper brains);
+3. runs the world in this process (:class:`sim_bridge.sim.World`), recording the
+   MCAP log (``--record``, default ``runs/<swarm>-<time>.mcap``) and showing a
+   progress line (pattern, step, formation error, robots alive) when stdout is a
+   terminal; the robots' own log lines go to ``<log stem>.robots.log``;
+4. stops every robot by its PID (SIGTERM, then SIGKILL after a grace period),
+   finishes the log, prints a table per pattern (steps to form and its lower
+   bound, travel and its lower bound, collisions, min separation, deadline
+   misses) and draws the trajectory figure ``<log stem>.png`` beside the log.
+
+Ctrl-C (or SIGTERM) at any point: the world stops after its current step, every
+robot is stopped by PID, the log is finished and the table shows what was done.
+The robots also run with ``--exit-after-silence-s``, so even a launcher killed
+with SIGKILL leaves no robot behind for long.
+
+Exit codes: 0 only when every pattern formed; 1 otherwise (or a robot failed to
+start); 2 on bad input; 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+from types import FrameType
+from typing import IO, Any
+
+from runtime.brain import RULE_ASSIGN
+from runtime.patterns import pattern_label
+from runtime.zenoh_session import ZenohSetupError, open_session
+from sim_bridge.recorder import Recorder
+from sim_bridge.sim import (
+    BrainChoice,
+    InputError,
+    PhaseResult,
+    Progress,
+    RunResult,
+    World,
+    add_world_arguments,
+    brains_from_arg,
+    choose_brains,
+    config_from_args,
+    result_dict,
+    rule_choice,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+STOP_GRACE_S = 3.0
+ROBOT_SILENCE_EXIT_S = 20.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--swarm", default=None, help="swarm name (default launch-<pid>)")
+    add_world_arguments(p)
+    p.add_argument("--brains", default="auto",
+                   help="auto (exports/ if it has a brain for every pattern, else rule:assign), "
+                        "a directory of brains, or rule:assign")
+    p.add_argument("--safety", choices=("orca", "off"), default="orca",
+                   help="the robots' safety filter (default orca)")
+    p.add_argument("--start-timeout-s", type=float, default=60.0,
+                   help="give up if the robots are not all alive by then (default 60)")
+    p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
+    p.add_argument("-v", "--verbose", action="store_true", help="every world message")
+
+
+# ------------------------------------------------------------------------ brains
+
+
+def pick_brains(value: str, patterns: list[str], n: int, prefer: str
+                ) -> tuple[dict[str, BrainChoice], str]:
+    """(brain per pattern, a line saying where they came from)."""
+    if value != "auto":
+        chosen = brains_from_arg(value, patterns, n, prefer)
+        assert chosen is not None  # "none" is not offered by the launcher
+        return chosen, f"brains: {value}"
+    for d in (Path("exports"), ROOT / "exports"):
+        if d.is_dir():
+            chosen, missing = choose_brains(d, patterns, n, prefer)
+            if not missing:
+                return chosen, f"brains: {d} (a brain for every pattern)"
+            if chosen:
+                return ({p: rule_choice() for p in patterns},
+                        f"brains: {RULE_ASSIGN} ({d} has none for {', '.join(missing)})")
+    return {p: rule_choice() for p in patterns}, f"brains: {RULE_ASSIGN} (no trained brains found)"
+
+
+# ------------------------------------------------------------------------ robots
+
+
+def free_port() -> int:
+    """A TCP port free on loopback right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Robots:
+    """The robot processes: started together, stopped by PID, never left behind."""
+
+    def __init__(self) -> None:
+        self.procs: dict[int, subprocess.Popen[bytes]] = {}
+        self._log: IO[bytes] | None = None
+
+    def start(self, n: int, swarm: str, port: int, brain: str, args: argparse.Namespace,
+              log_path: Path) -> None:
+        self._log = open(log_path, "ab")  # closed in stop()
+        for rid in range(n):
+            cmd = [sys.executable, "-m", "patternrl.cli", "robot", "--swarm", swarm,
+                   "--id", str(rid), "--brain", brain, "--mode", args.mode,
+                   "--zenoh-port", str(port), "--safety", args.safety,
+                   "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
+            if args.mode == "realtime":
+                cmd += ["--rate-hz", str(args.rate_hz)]
+            # Own process group: a Ctrl-C reaches the launcher only, which then stops
+            # each robot by PID after finishing the log.
+            self.procs[rid] = subprocess.Popen(
+                cmd, stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log,
+                start_new_session=True, cwd=os.getcwd())
+
+    def failed(self) -> list[tuple[int, int]]:
+        """(robot, exit code) of robots that exited with an error."""
+        return [(r, p.returncode) for r, p in self.procs.items()
+                if p.poll() is not None and p.returncode not in (0, -signal.SIGTERM)]
+
+    def stop(self, grace_s: float = STOP_GRACE_S) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                try:
+                    p.send_signal(signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace_s
+        for p in self.procs.values():
+            try:
+                p.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+
+# ------------------------------------------------------------------------ output
+
+
+class ProgressLine:
+    """One line rewritten in place on a terminal; silent otherwise."""
+
+    def __init__(self, stream: IO[str], period_s: float = 0.1) -> None:
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.period_s = period_s
+        self._last = 0.0
+        self._shown = False
+
+    def update(self, p: Progress) -> None:
+        if not self.tty:
+            return
+        now = time.monotonic()
+        if now - self._last < self.period_s:
+            return
+        self._last = now
+        line = (f"[{p.phase + 1}/{p.n_phases}] {p.pattern:<10} step {p.phase_step:>4} "
+                f"(total {p.step:>5})  error {p.formation_error_m * 1000:8.1f} mm  "
+                f"robots alive {p.n_live:>3}  deadline misses {p.deadline_misses}")
+        self.stream.write("\r\x1b[2K" + line)
+        self.stream.flush()
+        self._shown = True
+
+    def clear(self) -> None:
+        if self.tty and self._shown:
+            self.stream.write("\r\x1b[2K")
+            self.stream.flush()
+            self._shown = False
+
+
+def _ratio(a: float, b: float) -> str:
+    return f"{a / b:.2f}x" if b > 0 else "-"
+
+
+def format_table(phases: list[PhaseResult]) -> str:
+    """The per-pattern table of the demo."""
+    head = ("pattern", "brain", "formed", "steps", "bound", "ratio", "travel m", "bound m",
+            "ratio", "collisions", "min sep m", "deadline misses")
+    rows = []
+    for p in phases:
+        rows.append((p.pattern, p.brain, "yes" if p.formed else "NO", str(p.steps),
+                     str(p.lower_bound_steps), _ratio(p.steps, p.lower_bound_steps),
+                     f"{p.travel_m:.2f}", f"{p.lower_bound_travel_m:.2f}",
+                     _ratio(p.travel_m, p.lower_bound_travel_m), str(p.collisions),
+                     f"{p.min_separation_m:.3f}", str(p.deadline_misses)))
+    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h)
+              for i, h in enumerate(head)]
+    left = {0, 1, 2}
+
+    def fmt(cells: tuple[str, ...]) -> str:
+        return "  ".join(c.ljust(w) if i in left else c.rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True)))
+
+    lines = [fmt(head), fmt(tuple("-" * w for w in widths))]
+    lines += [fmt(r) for r in rows]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------ run
+
+
+def run(args: argparse.Namespace) -> int:
+    swarm = args.swarm or f"launch-{os.getpid()}"
+    args.swarm = swarm
+    args.wait_robots_s = args.start_timeout_s
+    patterns = [p.strip() for p in str(args.patterns).split(",") if p.strip()]
+    try:
+        brains, brains_line = pick_brains(args.brains, patterns, args.robots, args.brain_kind)
+        cfg = config_from_args(args, brains)
+    except InputError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
+    record: Path = args.record or Path("runs") / f"{swarm}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    record.parent.mkdir(parents=True, exist_ok=True)
+    robots_log = record.with_suffix(".robots.log")
+    port = free_port()
+    out, err = sys.stdout, sys.stderr
+    progress = ProgressLine(out)
+    verbose = bool(args.verbose)
+
+    def say(msg: str, detail: bool = False) -> None:
+        if detail and not verbose:
+            return
+        progress.clear()
+        print(msg, file=err, flush=True)
+
+    try:
+        session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+    except ZenohSetupError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
+    rec = Recorder(record)
+    world = World(cfg, session, rec, on_progress=progress.update, log=say)
+    robots = Robots()
+    interrupted = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        interrupted.set()
+        world.stop_event.set()
+        with world._cond:
+            world._cond.notify_all()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    watcher_stop = threading.Event()
+
+    def watch() -> None:  # a robot that dies at start would leave the world waiting
+        while not watcher_stop.wait(0.2):
+            bad = robots.failed()
+            if bad and world.step == 0:
+                say("robot(s) failed to start: " + ", ".join(f"{r} (exit {c})" for r, c in bad)
+                    + f"; see {robots_log}")
+                world.stop_event.set()
+                with world._cond:
+                    world._cond.notify_all()
+                return
+
+    first = brains[patterns[0]].ref
+    say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm}, log {record}")
+    res: RunResult | None = None
+    try:
+        robots.start(args.robots, swarm, port, first, args, robots_log)
+        watcher = threading.Thread(target=watch, name="robot-watch", daemon=True)
+        watcher.start()
+        res = world.run()
+    finally:
+        watcher_stop.set()
+        progress.clear()
+        robots.stop()
+        rec.close()
+        try:
+            session.close()  # type: ignore[no-untyped-call]
+        except Exception:
+            pass
+        for s, h in old.items():
+            signal.signal(s, h)
+    assert res is not None  # world.run() returned (it raises only on a bug)
+    png: Path | None = None
+    if not args.no_plot and res.phases:
+        from sim_bridge.plots import draw_log
+
+        try:
+            names = ", ".join(map(pattern_label, patterns))
+            png = draw_log(record, title=f"{args.robots} robots: {names}")
+        except Exception as e:  # a figure is a by-product: never lose the table for it
+            say(f"could not draw the figure: {e}")
+    failed_start = bool(robots.failed()) and res.steps == 0
+    if args.json:
+        d: dict[str, Any] = result_dict(res)
+        d.update(figure=str(png) if png else None, robots_log=str(robots_log),
+                 brains={k: asdict(v) for k, v in brains.items()})
+        print(json.dumps(d), file=out)
+    else:
+        if res.phases:
+            print(format_table(res.phases), file=out)
+        tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
+        verdict = {"done": "every pattern formed" if res.all_formed else "NOT every pattern formed",
+                   "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
+        if failed_start:
+            verdict = "robots failed to start"
+        print(f"{verdict}: {res.steps} steps in {res.wall_s:.1f} s; {tail}", file=out)
+    if failed_start:
+        return 1
+    if interrupted.is_set() or res.outcome == "interrupted":
+        return 130
+    return 0 if res.all_formed else 1
