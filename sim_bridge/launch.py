@@ -78,6 +78,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the robots' safety filter (default orca)")
     p.add_argument("--start-timeout-s", type=float, default=60.0,
                    help="give up if the robots are not all alive by then (default 60)")
+    p.add_argument("--zenoh-port", type=int, default=None,
+                   help="the world's loopback port (default: a free one), e.g. to watch the run")
     p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
     p.add_argument("-v", "--verbose", action="store_true", help="every world message")
 
@@ -239,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
     record: Path = args.record or Path("runs") / f"{swarm}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
-    port = free_port()
+    port = args.zenoh_port or free_port()
     out, err = sys.stdout, sys.stderr
     progress = ProgressLine(out)
     verbose = bool(args.verbose)

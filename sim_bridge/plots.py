@@ -145,8 +145,8 @@ def draw_trajectories(
         ax.set_ylabel("y (m)", fontsize=8)
         ax.grid(alpha=0.15)
     if title:
-        fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
+        fig.suptitle(title, fontsize=11, y=1.0)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.97) if title else None)
     path = Path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=130, bbox_inches="tight")
