@@ -32,6 +32,7 @@ returned, so its first real decision is as fast as the next ones.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -337,8 +338,14 @@ def probe_observations(spec: ObservationSpec, world: WorldConfig = DEFAULT_WORLD
     """A fixed, seeded set of plausible observations for ``spec``, (N_PROBES, spec.dim).
 
     Built with the real builders from random teams (so masks, slot features and
-    velocities look like what a robot sees), plus an all-zero row.
+    velocities look like what a robot sees), plus an all-zero row. Cached: a
+    robot validating a swap does not rebuild them (read-only array).
     """
+    return _probes(spec, world)
+
+
+@functools.lru_cache(maxsize=16)
+def _probes(spec: ObservationSpec, world: WorldConfig) -> Array:
     rng = np.random.default_rng(PROBE_SEED)
     rows: list[Array] = [np.zeros((1, spec.dim))]
     if spec.name == "paper":
@@ -357,6 +364,7 @@ def probe_observations(spec: ObservationSpec, world: WorldConfig = DEFAULT_WORLD
             slots = p + rng.normal(0, 1.0, (n, 2))
             rows.append(general_observation(p, prev, slots, k=k, world=world))
     out: Array = np.concatenate(rows)[:N_PROBES]
+    out.setflags(write=False)
     return out
 
 

@@ -200,8 +200,6 @@ class Controller:
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
         self._cc_list: list[list[float]] = []
-        self._neg_cct: Array = np.zeros((2, 0))
-        self._cc_sq = 0.0
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -233,8 +231,6 @@ class Controller:
             raise ValueError(f"pattern must have shape (n, 2), got {c.shape}")
         self._cc = c - c.mean(axis=0, keepdims=True)
         self._cc_list = self._cc.tolist()
-        self._neg_cct = np.ascontiguousarray(-self._cc.T)
-        self._cc_sq = float(np.einsum("ij,ij->", self._cc, self._cc))
         self._pattern_obj = pattern
         self._prev_slots = None
         self._prev_list = None
@@ -259,31 +255,28 @@ class Controller:
 
     # ----------------------------------------------------------- assignment
 
-    def _assign(self, p: Array) -> IntArray:
-        """Shared assignment with hysteresis (same rule as formation.assign_slots).
+    def _assign(self, p: Array) -> tuple[IntArray, Array]:
+        """Shared assignment with hysteresis; returns (slots, team centroid).
 
-        Minimising sum |pc_i - cc_s(i)|^2 over permutations is maximising
-        sum p_i . cc_s(i) (the other terms are row and column constants, and the
-        centred pattern sums to zero), so the cost handed to the solver is one
-        matrix product. The hysteresis margin is judged on the summed squared
-        distances, recovered as K - 2 sum p_i . cc_s(i).
+        The very arithmetic of ``formation.assign_slots`` (centred squared
+        distances, the same hysteresis test), so the robot and the batch path
+        agree even on ties; only the pattern's centring is cached.
         """
-        cost = p @ self._neg_cct  # (n, n): -p_i . cc_j
+        n = p.shape[0]
+        cen = np.add.reduce(p, 0) / n  # == p.mean(0), without mean's Python overhead
+        d = (p - cen)[:, None, :] - self._cc[None, :, :]
+        cost = np.einsum("...k,...k->...", d, d)
         _, cols = linear_sum_assignment(cost)
         prev = self._prev_slots
         if prev is not None and self._prev_list != cols.tolist():
-            n = p.shape[0]
             rows = np.arange(n)
-            pc = p - np.add.reduce(p, 0) / n
-            k = float(np.einsum("ij,ij->", pc, pc)) + self._cc_sq
-            new = k + 2.0 * float(cost[rows, cols].sum())
-            old = k + 2.0 * float(cost[rows, prev].sum())
+            new, old = cost[rows, cols].sum(), cost[rows, prev].sum()
             if not new < old - (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2):
                 cols = prev
         slots: IntArray = cols
         self._prev_slots = slots
         self._prev_list = slots.tolist()
-        return slots
+        return slots, cen
 
     # -------------------------------------------------------------- decide
 
@@ -332,10 +325,11 @@ class Controller:
         if not spec.accepts_team(n) or self._cc.shape[0] != n:
             error = ERR_TEAM
         elif spec.name == "general":
-            slot = self._assign(pos)[i]
-            obs = self._general_one(i, L, V, slot, spec.k_neighbours)
+            slots, cen = self._assign(pos)
+            slot = int(slots[i])
+            obs = self._general_one(i, L, V, slot, spec.k_neighbours, cen)
         else:
-            slot = int(self._assign(pos)[i])
+            slot = int(self._assign(pos)[0][i])
             obs = _paper_one(i, self._frames)
         bvx = bvy = 0.0
         if obs is not None:
@@ -364,7 +358,13 @@ class Controller:
         return Decision((vx, vy), (bvx, bvy), changed, change, us, "", int(slot))
 
     def _general_one(
-        self, i: int, L: list[list[float]], V: list[list[float]], slot: int, k: int
+        self,
+        i: int,
+        L: list[list[float]],
+        V: list[list[float]],
+        slot: int,
+        k: int,
+        cen: Array | None = None,
     ) -> Array:
         """Robot i's general observation, (1, 6 + 5k), in plain floats.
 
@@ -373,12 +373,15 @@ class Controller:
         cost more than the arithmetic.
         """
         n = len(L)
-        cx = cy = 0.0
-        for q in L:  # sequential sums, as numpy reduces along the robot axis
-            cx += q[0]
-            cy += q[1]
-        cx /= n
-        cy /= n
+        if cen is not None:
+            cx, cy = cen.tolist()
+        else:
+            cx = cy = 0.0
+            for q in L:  # sequential sums, as numpy reduces along the robot axis
+                cx += q[0]
+                cy += q[1]
+            cx /= n
+            cy /= n
         px, py = L[i]
         ccx, ccy = self._cc_list[slot]
         svx = (ccx + cx) - px

@@ -43,7 +43,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import queue
 import signal
 import sys
@@ -344,10 +343,8 @@ class Robot:
     # ------------------------------------------------------------ swap worker
 
     def _swap_worker(self) -> None:
-        try:  # validation must not compete with the control loop
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-        except (AttributeError, OSError):
-            pass
+        # Not niced on purpose: this thread holds the GIL in stretches, and a
+        # low-priority GIL holder would stall the control loop under CPU load.
         while not self._stop.is_set():
             payload = self._swap_q.get()
             if self._stop.is_set() or not payload:

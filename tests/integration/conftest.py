@@ -41,7 +41,7 @@ from runtime.messages import (
 )
 from runtime.patterns import make_pattern
 from runtime.world import DEFAULT_WORLD
-from runtime.zenoh_session import open_session
+from runtime.zenoh_session import PORT_ENV, open_session
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -203,7 +203,15 @@ class StubWorld:
 class RobotProc:
     """``python -m patternrl.cli robot ...`` as a child process."""
 
-    def __init__(self, world: StubWorld, rid: int, brain: str, *extra: str) -> None:
+    def __init__(
+        self,
+        world: StubWorld,
+        rid: int,
+        brain: str,
+        *extra: str,
+        default_endpoints: bool = False,
+    ) -> None:
+        """``default_endpoints``: no --connect/--listen; find the world by its swarm's port."""
         self.rid = rid
         cmd = [
             sys.executable,
@@ -216,13 +224,14 @@ class RobotProc:
             str(rid),
             "--brain",
             brain,
-            "--connect",
-            world.endpoint,
-            "--listen",
-            "tcp/127.0.0.1:0",
-            *extra,
         ]
+        if not default_endpoints:
+            cmd += ["--connect", world.endpoint, "--listen", "tcp/127.0.0.1:0"]
+        cmd += list(extra)
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env.pop(PORT_ENV, None)
+        if default_endpoints:
+            env[PORT_ENV] = str(world.port)
         self.t_start = time.monotonic()
         self.proc = subprocess.Popen(
             cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True

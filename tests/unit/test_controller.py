@@ -181,7 +181,7 @@ def test_hysteresis_constants_match_formation() -> None:
 def test_single_path_assignment_and_observation_match_the_builders() -> None:
     rng = np.random.default_rng(7)
     for trial in range(40):
-        n = int(rng.integers(2, 14))
+        n = int(rng.integers(2, 14)) if trial < 30 else int(rng.integers(20, 60))
         k = int(rng.integers(1, 8))
         C = make_pattern("heart" if trial % 2 else "circle", n)
         c = Controller(RuleBrain(k_neighbours=k), W, None)
