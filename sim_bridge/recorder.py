@@ -30,7 +30,7 @@ phase's results: formed, steps, lower bounds, travel, collisions, min separation
 deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
 ``leave``, ``collision`` (robot pairs that overlapped during the step),
 ``contact`` (pairs the physics saw start touching, walls included),
-``deadline_miss`` (robots that had not answered by the deadline), ``malformed``
+``deadline_miss`` (robots that had not answered step ``for_step`` in time), ``malformed``
 (a payload that did not decode), ``run_end`` (outcome).
 
 ``/world/scene``: one ``foxglove.SceneUpdate`` per step, frame ``world``: an

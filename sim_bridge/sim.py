@@ -674,8 +674,8 @@ class World:
                 self._event("collision", pairs=[list(p) for p in new_pairs])
             if res.new_contacts:
                 self._event("contact", pairs=[list(p) for p in res.new_contacts])
-            if missed:
-                self._event("deadline_miss", robots=missed)
+            if missed:  # the step those robots did not answer in time
+                self._event("deadline_miss", robots=missed, for_step=self.step - 1)
             self._record_step(index, name, phase_step, ids, new_pos, C, err, far, sep,
                               len(pairs), len(res.new_contacts), len(missed), t_step)
             if self.on_progress is not None:
