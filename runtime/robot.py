@@ -216,7 +216,8 @@ class Robot:
         self._pending: deque[tuple[str, Brain | None, str]] = deque()  # (request, brain, why)
         self._answers: deque[tuple[str, bool, str, str, str]] = deque()
         self._recent_answers: dict[str, tuple[bool, str, str, str]] = {}
-        # --- counters (ints: += from callbacks is fine under the GIL + lock)
+        # --- counters, incremented under _count_lock (several threads count)
+        self._count_lock = threading.Lock()
         self.dropped = 0
         self.errors = 0
         self.interventions = 0
@@ -279,7 +280,8 @@ class Robot:
     # -------------------------------------------------------------- callbacks
 
     def _drop(self, what: str, why: str) -> None:
-        self.dropped += 1
+        with self._count_lock:  # callbacks run on several Zenoh threads
+            self.dropped += 1
         self.log("debug", "dropped", f"{what}: {_one_line(why, 160)}")
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
@@ -352,7 +354,8 @@ class Robot:
             try:
                 self._handle_brain(payload)
             except Exception as e:  # never let a brain take the worker down
-                self.errors += 1
+                with self._count_lock:
+                    self.errors += 1
                 self.last_error = _one_line(f"swap worker: {e}")
 
     def _handle_brain(self, payload: bytes) -> None:
@@ -544,7 +547,8 @@ class Robot:
             d = self.controller.decide(ids.index(self.id), pos, pattern, step)
         if d.error:
             if pattern is not None:  # waiting for a pattern is not an error
-                self.errors += 1
+                with self._count_lock:
+                    self.errors += 1
             if d.error != self.last_error:
                 self.log("warning", "hold", d.error, step=step)
             self.last_error = d.error
@@ -608,14 +612,15 @@ class Robot:
         try:
             self._status_pub.put(encode_status(self._status(swap)))
         except MessageError as e:
-            self.errors += 1
+            with self._count_lock:
+                self.errors += 1
             self.last_error = _one_line(f"status: {e}")
 
     def _hold_still(self, why: str) -> None:
         self._holding = True
         self.controller.reset()
         self._team_ids = []
-        self.last_error = why
+        self.last_error = f"watchdog: {why}"
         self.log("warning", "watchdog", why)
         z = Decision((0.0, 0.0), (0.0, 0.0), False, 0.0, 0.0, why)
         self._publish_cmd(max(self._last_step_seen, 0), z)
@@ -647,7 +652,7 @@ class Robot:
             if last is not None:
                 silent = now - last
                 if silent > cfg.watchdog_s and not self._holding:
-                    self._hold_still(f"watchdog: no pose for {silent:.1f} s, holding still")
+                    self._hold_still(f"no pose for {silent:.1f} s, holding still")
                 elif silent <= cfg.watchdog_s and self._holding:
                     self._holding = False
                     self.log("info", "resume", "poses are back")
