@@ -17,11 +17,12 @@ filter -> clamp. Two entry points compute it:
     the safety filter per robot (``orca_filter_batch``).
 
 Both paths get a robot's neighbours for the safety filter from the same
-helper, :func:`safety_neighbours`: every other robot's position relative to
-the robot, and every robot's velocity estimated from two consecutive frames
-as (p_t - p_{t-1}) / dt. ORCA itself keeps the ``OrcaParams.max_neighbours``
-nearest within ``neighbour_dist_m`` (ties broken deterministically), so both
-paths filter identically. Tests check that they agree number for number.
+helper, :func:`neighbour_rows` (over :func:`frame_velocities`): every other
+robot's position relative to the robot, and every robot's velocity estimated
+from two consecutive frames as (p_t - p_{t-1}) / dt. ORCA itself keeps the
+``OrcaParams.max_neighbours`` nearest within ``neighbour_dist_m`` (ties broken
+deterministically), so both paths filter identically. Tests check that they
+agree number for number.
 
 Frames. ``frames[0]`` is the newest (t), ``frames[1]`` is t-1 and
 ``frames[2]`` is t-2; at the start (or after the team size changes) the
@@ -56,7 +57,8 @@ __all__ = [
     "Decision",
     "clamp_speed",
     "decide_batch",
-    "safety_neighbours",
+    "frame_velocities",
+    "neighbour_rows",
 ]
 
 Array = NDArray[np.float64]
@@ -137,44 +139,29 @@ def clamp_speed(vx: float, vy: float, v_max: float) -> tuple[float, float]:
     return vx, vy
 
 
-def _others(n: int) -> IntArray:
-    """(n, n-1) table: row i lists every robot but i, in id order."""
-    idx = np.arange(n)
-    table: IntArray = np.array([np.delete(idx, i) for i in range(n)], dtype=np.int64).reshape(
-        n, n - 1
-    )
-    return table
+def frame_velocities(L: list[list[float]], Lp: list[list[float]], dt: float) -> list[list[float]]:
+    """Every robot's velocity estimated from two frames: (p_t - p_{t-1}) / dt, plain floats.
 
-
-def safety_neighbours(
-    pos: Array,
-    prev_pos: Array,
-    dt: float,
-    index: int | None = None,
-    others: IntArray | None = None,
-) -> tuple[Array, Array, Array]:
-    """A robot's view of its neighbours for the safety filter, from two frames.
-
-    ``pos``, ``prev_pos``: (..., n, 2) positions at t and t-1.
-    With ``index=None`` for every robot: returns ``own_vel`` (..., n, 2),
-    ``rel_pos`` (..., n, n-1, 2) (p_j - p_i over every j != i in id order) and
-    ``nb_vel`` (..., n, n-1, 2) (absolute velocities of those j).
-    With ``index=i`` (and 2-D input) for robot i alone: (2,), (n-1, 2), (n-1, 2).
-    Velocities are (p_t - p_{t-1}) / dt. ``others`` is an optional precomputed
-    index (row ``i`` of the (n, n-1) table, or the whole table).
+    The same IEEE operations as the observation builders' numpy ``(p - prev) / dt``.
     """
-    vel = (pos - prev_pos) / dt
-    n = pos.shape[-2]
-    if index is not None:
-        oth = others if others is not None else np.delete(np.arange(n), index)
-        own_one: Array = vel[index]
-        rel_one: Array = pos[oth] - pos[index]
-        nbv_one: Array = vel[oth]
-        return own_one, rel_one, nbv_one
-    table = others if others is not None else _others(n)
-    rel: Array = pos[..., table, :] - pos[..., :, None, :]
-    nbv: Array = vel[..., table, :]
-    return vel, rel, nbv
+    return [[(a[0] - b[0]) / dt, (a[1] - b[1]) / dt] for a, b in zip(L, Lp, strict=True)]
+
+
+def neighbour_rows(
+    i: int, L: list[list[float]], V: list[list[float]]
+) -> tuple[list[float], list[list[float]], list[list[float]]]:
+    """Robot i's view of its neighbours for the safety filter (the one helper both paths use).
+
+    ``L``: positions at t, ``V``: :func:`frame_velocities`, both in robot-id
+    order. Returns (own velocity, every other robot's position relative to
+    robot i, those robots' absolute velocities), others in id order with i left
+    out. ORCA itself keeps the ``max_neighbours`` nearest within
+    ``neighbour_dist_m``, with deterministic ties.
+    """
+    px, py = L[i]
+    rel = [[q[0] - px, q[1] - py] for q in L]
+    del rel[i]
+    return V[i], rel, V[:i] + V[i + 1 :]
 
 
 class Controller:
@@ -320,8 +307,7 @@ class Controller:
         obs: Array | None = None
         L, Lp = self._lists[0], self._lists[1]
         dt = self._dt
-        # velocities from consecutive frames, (p_t - p_{t-1}) / dt, as plain floats
-        V = [[(a[0] - b[0]) / dt, (a[1] - b[1]) / dt] for a, b in zip(L, Lp, strict=True)]
+        V = frame_velocities(L, Lp, dt)
         if not spec.accepts_team(n) or self._cc.shape[0] != n:
             error = ERR_TEAM
         elif spec.name == "general":
@@ -347,11 +333,8 @@ class Controller:
         changed = False
         change = 0.0
         if self.safety is not None and n >= 2:
-            px, py = L[i]
-            rel = [[q[0] - px, q[1] - py] for q in L]
-            del rel[i]
-            nbv = V[:i] + V[i + 1 :]
-            res = orca_filter((vx, vy), V[i], rel, nbv, world=self.world, params=self.safety)
+            own, rel, nbv = neighbour_rows(i, L, V)
+            res = orca_filter((vx, vy), own, rel, nbv, world=self.world, params=self.safety)
             vx, vy = clamp_speed(res.velocity[0], res.velocity[1], self._v_max)
             changed, change = res.changed, res.change_mps
         us = (time.perf_counter_ns() - t0) / 1000.0
@@ -465,14 +448,23 @@ def decide_batch(
             act[e, i] = clamp_speed(float(act[e, i, 0]), float(act[e, i, 1]), v_max)
     changed = np.zeros((E, n), dtype=bool)
     if safety is not None and n >= 2:
-        own, rel, nbv = safety_neighbours(pos, prev, world.dt_s)
-        mask = np.ones((E * n, n - 1), dtype=bool)
+        own_l: list[list[float]] = []
+        rel_l: list[list[list[float]]] = []
+        nbv_l: list[list[list[float]]] = []
+        for e in range(E):
+            L = pos[e].tolist()
+            V = frame_velocities(L, prev[e].tolist(), world.dt_s)
+            for i in range(n):
+                own_i, rel_i, nbv_i = neighbour_rows(i, L, V)
+                own_l.append(own_i)
+                rel_l.append(rel_i)
+                nbv_l.append(nbv_i)
         safe, ch = orca_filter_batch(
             act.reshape(E * n, 2),
-            own.reshape(E * n, 2),
-            rel.reshape(E * n, n - 1, 2),
-            nbv.reshape(E * n, n - 1, 2),
-            mask,
+            np.array(own_l),
+            np.array(rel_l),
+            np.array(nbv_l),
+            np.ones((E * n, n - 1), dtype=bool),
             world=world,
             params=safety,
         )

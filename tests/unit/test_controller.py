@@ -14,7 +14,7 @@ from test_brain import mlp_model  # tests/unit is on sys.path (pytest rootdir mo
 from runtime import controller as ctl
 from runtime import formation
 from runtime.brain import BrainManifest, RuleBrain, validate_brain_bytes
-from runtime.controller import Controller, decide_batch, safety_neighbours
+from runtime.controller import Controller, decide_batch, frame_velocities, neighbour_rows
 from runtime.formation import assign_slots, formation_error, slot_positions
 from runtime.observation import ObservationSpec, general_observation_one, paper_observation
 from runtime.patterns import make_pattern
@@ -215,16 +215,17 @@ def test_paper_one_matches_paper_observation() -> None:
             np.testing.assert_array_equal(ctl._paper_one(i, list(frames))[0], full[i])
 
 
-def test_safety_neighbours_single_equals_batch_rows() -> None:
+def test_neighbour_rows_are_every_other_robot_in_id_order() -> None:
     rng = np.random.default_rng(9)
-    pos, prev = rng.uniform(0, 3, (2, 3, 6, 2))
-    own, rel, nbv = safety_neighbours(pos, prev, W.dt_s)
-    for e in range(3):
-        for i in range(6):
-            o1, r1, v1 = safety_neighbours(pos[e], prev[e], W.dt_s, index=i)
-            np.testing.assert_array_equal(o1, own[e, i])
-            np.testing.assert_array_equal(r1, rel[e, i])
-            np.testing.assert_array_equal(v1, nbv[e, i])
+    pos, prev = rng.uniform(0, 3, (2, 6, 2))
+    V = frame_velocities(pos.tolist(), prev.tolist(), W.dt_s)
+    np.testing.assert_array_equal(np.array(V), (pos - prev) / W.dt_s)  # the builders' estimate
+    for i in range(6):
+        own, rel, nbv = neighbour_rows(i, pos.tolist(), V)
+        others = [j for j in range(6) if j != i]
+        np.testing.assert_array_equal(own, V[i])
+        np.testing.assert_array_equal(rel, pos[others] - pos[i])
+        np.testing.assert_array_equal(nbv, np.array(V)[others])
 
 
 @pytest.mark.parametrize("kind", ["rule", "onnx-general", "onnx-paper"])
@@ -260,7 +261,10 @@ def test_single_and_batch_paths_agree(kind: str, safety: OrcaParams | None) -> N
             for i in range(n):
                 d = ctrls[e][i].decide(i, walks_a[e, t], C, t)
                 assert d.slot == slots[e, i]
-                np.testing.assert_allclose(d.velocity, vel[e, i], rtol=1e-6, atol=1e-6)
+                if kind == "rule":  # same arithmetic throughout: the very same numbers
+                    np.testing.assert_array_equal(d.velocity, vel[e, i])
+                else:  # onnxruntime's batch and single-row kernels round differently
+                    np.testing.assert_allclose(d.velocity, vel[e, i], rtol=1e-6, atol=1e-6)
                 assert d.safety_changed == changed[e, i]
     if safety is not None:
         assert changed_any  # the comparison covered filtered decisions too
