@@ -252,7 +252,8 @@ class Controller:
         n = p.shape[0]
         cen = np.add.reduce(p, 0) / n  # == p.mean(0), without mean's Python overhead
         d = (p - cen)[:, None, :] - self._cc[None, :, :]
-        cost = np.einsum("...k,...k->...", d, d)
+        d *= d
+        cost = d[..., 0] + d[..., 1]  # == formation's einsum: two squares, one addition
         _, cols = linear_sum_assignment(cost)
         prev = self._prev_slots
         if prev is not None and self._prev_list != cols.tolist():
