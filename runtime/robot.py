@@ -730,11 +730,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("safety filter (ORCA)")
     d = OrcaParams()
     g.add_argument("--safety", choices=("orca", "off"), default="orca", help="(default orca)")
-    g.add_argument("--orca-time-horizon-s", type=float, default=d.time_horizon_s)
-    g.add_argument("--orca-radius-margin-m", type=float, default=d.radius_margin_m)
-    g.add_argument("--orca-max-neighbours", type=int, default=d.max_neighbours)
-    g.add_argument("--orca-neighbour-dist-m", type=float, default=d.neighbour_dist_m)
-    g.add_argument("--orca-keep-right-rad", type=float, default=d.keep_right_rad)
+    g.add_argument(
+        "--orca-time-horizon-s",
+        type=float,
+        default=d.time_horizon_s,
+        help=f"avoid collisions this far ahead (default {d.time_horizon_s})",
+    )
+    g.add_argument(
+        "--orca-radius-margin-m",
+        type=float,
+        default=d.radius_margin_m,
+        help=f"added to R for the filter (default {d.radius_margin_m})",
+    )
+    g.add_argument(
+        "--orca-max-neighbours",
+        type=int,
+        default=d.max_neighbours,
+        help=f"nearest neighbours considered (default {d.max_neighbours})",
+    )
+    g.add_argument(
+        "--orca-neighbour-dist-m",
+        type=float,
+        default=d.neighbour_dist_m,
+        help=f"neighbours farther are ignored (default {d.neighbour_dist_m})",
+    )
+    g.add_argument(
+        "--orca-keep-right-rad",
+        type=float,
+        default=d.keep_right_rad,
+        help=f"deadlock breaking turn, 0 = plain RVO2 (default {d.keep_right_rad})",
+    )
     add_zenoh_arguments(parser)
     lg = parser.add_argument_group("logging")
     lg.add_argument("--json-logs", action="store_true", help="one JSON object per log line")
