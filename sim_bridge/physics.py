@@ -114,7 +114,7 @@ class StepResult:
     """What one physics step did."""
 
     positions: Array
-    """(n, 2) positions after the step, in :attr:`PhysicsWorld.ids` order (m)."""
+    """(n, 2) positions after the step, in :attr:`PhysicsWorld.ids` order (m); do not modify."""
     new_contacts: list[tuple[int | str, int | str]] = field(default_factory=list)
     """Pairs that started touching this step: (id, id) or (id, "wall"), ids ascending."""
     substepped: bool = False
@@ -146,21 +146,26 @@ class PhysicsWorld:
         self.space.collision_bias = 1e-6
         self.space.iterations = 20
         self._add_walls()
+        # Chipmunk calls this for every pair in contact during a space step; without
+        # contacts it costs nothing, so the arbiters are only read after steps with one.
+        self._touch_seen = False
+        self.space.on_collision(pre_solve=self._on_touch)
         self._bodies: dict[int, pymunk.Body] = {}
         self.ids: list[int] = []
         self.contacts_total = 0
         self.substeps_total = 0
         self._touching: set[tuple[int | str, int | str]] = set()
         self._get = pb.Buffer()
-        self._set = pb.Buffer()
+        self._setv = pb.Buffer()
+        self._setp = pb.Buffer()
         self._arb = pb.Buffer()
         self._order: NDArray[np.intp] = np.zeros(0, dtype=np.intp)
-        self._n_bodies = 0
-        self._pos = np.zeros((0, 2))
-        self._body_row: dict[int, int] = {}
-        self._wall_body_id = self.space.static_body.id
+        self._reindex()
 
     # ------------------------------------------------------------------ members
+
+    def _on_touch(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: object) -> None:
+        self._touch_seen = True
 
     def _add_walls(self) -> None:
         a, w = self.arena_m, WALL_THICKNESS_M
@@ -206,13 +211,27 @@ class PhysicsWorld:
         self._get.clear()
         pb.get_space_bodies(self.space, pb.BodyFields.BODY_ID, self._get)
         body_ids = np.frombuffer(self._get.int_buf(), dtype=np.uintp).tolist()
-        row_of_id = {rid: k for k, rid in enumerate(self.ids)}
+        self._row_of = {rid: k for k, rid in enumerate(self.ids)}
         # order[k] = row (in ids order) of the k-th body pymunk iterates; -1 for others
         self._order = np.array(
-            [row_of_id[by_body[b]] if b in by_body else -1 for b in body_ids], dtype=np.intp
+            [self._row_of[by_body[b]] if b in by_body else -1 for b in body_ids], dtype=np.intp
         )
+        n = len(self.ids)
         self._n_bodies = len(body_ids)
-        self._body_row = {b.id: row_of_id[rid] for rid, b in self._bodies.items()}
+        self._mine = self._order >= 0
+        self._rows = self._order[self._mine]
+        # Robots added in id order and none removed: pymunk iterates them in id order,
+        # first, then the static body. Then rows map one to one, no gather needed.
+        self._identity = bool(
+            np.array_equal(self._order[:n], np.arange(n)) and not self._mine[n:].any()
+        )
+        self._body_row = {b.id: self._row_of[rid] for rid, b in self._bodies.items()}
+        # Input buffers bound once to pymunk.batch buffers: a step only fills them.
+        self._vbuf = np.zeros((self._n_bodies, 2))  # statics keep velocity 0
+        self._pbuf = np.zeros((self._n_bodies, 2))
+        self._pbuf[~self._mine] = tuple(self.space.static_body.position)
+        self._setv.set_float_buf(self._vbuf.reshape(-1))
+        self._setp.set_float_buf(self._pbuf.reshape(-1))
         self._pos = self._read_positions()
 
     # ------------------------------------------------------------------ state
@@ -221,24 +240,30 @@ class PhysicsWorld:
         self._get.clear()
         pb.get_space_bodies(self.space, pb.BodyFields.POSITION, self._get)
         raw = np.frombuffer(self._get.float_buf(), dtype=np.float64).reshape(-1, 2)
+        if self._identity:
+            return raw[: len(self.ids)].copy()
         out = np.empty((len(self.ids), 2))
-        mine = self._order >= 0
-        out[self._order[mine]] = raw[mine]
+        out[self._rows] = raw[self._mine]
         return out
 
     def positions(self) -> Array:
         """(n, 2) positions in :attr:`ids` order (a copy, metres)."""
         return self._pos.copy()
 
-    def _write(self, fields: pb.BodyFields, rows: Array, others: Array) -> None:
-        """Set one 2-vector field of every body: ``rows`` for robots, ``others`` for the rest."""
-        buf = np.empty((self._n_bodies, 2))
-        mine = self._order >= 0
-        buf[mine] = rows[self._order[mine]]
-        buf[~mine] = others
-        self._set_data = buf.reshape(-1)  # kept alive while pymunk reads it
-        self._set.set_float_buf(self._set_data)
-        pb.set_space_bodies(self.space, fields, self._set)
+    def _write_velocities(self, v: Array) -> None:
+        self._fill(self._vbuf, v)
+        pb.set_space_bodies(self.space, pb.BodyFields.VELOCITY, self._setv)
+
+    def _write_positions(self, p: Array) -> None:
+        self._fill(self._pbuf, p)
+        pb.set_space_bodies(self.space, pb.BodyFields.POSITION, self._setp)
+
+    def _fill(self, buf: Array, rows: Array) -> None:
+        """Robots' rows of a bound buffer, in pymunk's order (statics' rows stay as set)."""
+        if self._identity:
+            buf[: len(rows)] = rows
+        else:
+            buf[self._mine] = rows[self._rows]
 
     def _contact_candidates(self) -> set[tuple[int, int]]:
         """Body-id pairs of pymunk's cached arbiters (a superset of the touching pairs)."""
@@ -246,24 +271,29 @@ class PhysicsWorld:
         pb.get_space_arbiters(
             self.space, pb.ArbiterFields.BODY_A_ID | pb.ArbiterFields.BODY_B_ID, self._arb
         )
-        ids = np.frombuffer(self._arb.int_buf(), dtype=np.uintp).reshape(-1, 2)
-        return {(int(a), int(b)) for a, b in ids}
+        raw = self._arb.int_buf()
+        if not len(raw):  # the usual case: nothing near anything
+            return set()
+        ids = np.frombuffer(raw, dtype=np.uintp).reshape(-1, 2).tolist()
+        return {(a, b) for a, b in ids}
 
     def _pair_gap(self, pair: tuple[int | str, int | str], pos: Array) -> float:
         """Gap (m) between the discs of a pair, or a disc and the nearest wall; < 0 overlaps."""
         r, a = self.world.radius_m, self.arena_m
-        row = {rid: k for k, rid in enumerate(self.ids)}
+        row = self._row_of
         i, j = pair
         if j == "wall":
             x, y = pos[row[int(i)]]
             return float(min(x, y, a - x, a - y) - r)
         return math.dist(pos[row[int(i)]], pos[row[int(j)]]) - 2 * r
 
-    def _touching_pairs(self, pos: Array, gap_m: float) -> set[tuple[int | str, int | str]]:
+    def _touching_pairs(
+        self, pos: Array, candidates: set[tuple[int, int]], gap_m: float
+    ) -> set[tuple[int | str, int | str]]:
         """Pairs whose gap at ``pos`` is below ``gap_m``, among pymunk's arbiter candidates."""
         r, a = self.world.radius_m, self.arena_m
         out: set[tuple[int | str, int | str]] = set()
-        for ba, bb in self._contact_candidates():
+        for ba, bb in candidates:
             ra, rb = self._body_row.get(ba), self._body_row.get(bb)
             if ra is not None and rb is not None:
                 if math.dist(pos[ra], pos[rb]) < 2 * r + gap_m:
@@ -284,34 +314,40 @@ class PhysicsWorld:
         """Advance by ``world.dt_s`` with one velocity per robot ((n, 2), m/s, ids order)."""
         n = len(self.ids)
         v = np.asarray(velocities, dtype=np.float64).reshape(n, 2)
-        v = np.where(np.isfinite(v), v, 0.0)
-        speed = np.linalg.norm(v, axis=1, keepdims=True)
         vmax = self.world.v_max_mps
-        v = np.where(speed > vmax, v * (vmax / np.maximum(speed, 1e-300)), v)
+        speed2 = np.einsum("ij,ij->i", v, v)
+        top = float(speed2.max()) if n else 0.0
+        if not top <= vmax * vmax:  # too fast, or not finite (nan fails every comparison)
+            v = np.where(np.isfinite(v), v, 0.0)
+            speed = np.hypot(v[:, 0], v[:, 1])
+            v = v * np.minimum(1.0, vmax / np.maximum(speed, 1e-300))[:, None]
         dt = self.world.dt_s
         before = self._pos
-        zero = np.zeros(2)
-        self._write(pb.BodyFields.VELOCITY, v, zero)
+        self._write_velocities(v)
+        self._touch_seen = False
         self.space.step(dt)
         pos = self._read_positions()
+        cands = self._contact_candidates() if self._touch_seen else set()
         substepped = False
         # Redo the step in sub-steps when it ends with an overlap beyond 10x the slop.
-        if n and self._touching_pairs(pos, -10 * self.space.collision_slop):
+        if cands and self._touching_pairs(pos, cands, -10 * self.space.collision_slop):
             substepped = True
             self.substeps_total += 1
-            statics = np.array(self.space.static_body.position)
-            self._write(pb.BodyFields.POSITION, before, statics)
-            self._write(pb.BodyFields.VELOCITY, v, zero)
+            self._write_positions(before)
+            self._write_velocities(v)
             sub = dt / self.contact_substeps
             for _ in range(self.contact_substeps):
                 self.space.step(sub)
             pos = self._read_positions()
-        # A contact begins when a pair touches that was not in contact; it ends only
-        # once the pair is release_gap_m apart (hysteresis).
-        touching = self._touching_pairs(pos, 1e-6) if n else set()
-        new = sorted(touching - self._touching, key=str)
-        kept = {p for p in self._touching if self._pair_gap(p, pos) < self.release_gap_m}
-        self._touching = touching | kept
-        self.contacts_total += len(new)
+            cands = self._contact_candidates()  # the state after the sub-steps
+        new: list[tuple[int | str, int | str]] = []
+        if cands or self._touching:
+            # A contact begins when a pair touches that was not in contact; it ends only
+            # once the pair is release_gap_m apart (hysteresis).
+            touching = self._touching_pairs(pos, cands, 1e-6)
+            new = sorted(touching - self._touching, key=str)
+            kept = {p for p in self._touching if self._pair_gap(p, pos) < self.release_gap_m}
+            self._touching = touching | kept
+            self.contacts_total += len(new)
         self._pos = pos
-        return StepResult(positions=pos.copy(), new_contacts=new, substepped=substepped)
+        return StepResult(positions=pos, new_contacts=new, substepped=substepped)

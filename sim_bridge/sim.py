@@ -74,7 +74,6 @@ from runtime.formation import (
     collision_pairs,
     lower_bounds,
     min_separation,
-    slot_distances,
 )
 from runtime.messages import (
     Command,
@@ -447,7 +446,7 @@ class World:
     def _add(self, rid: int, x: float, y: float) -> None:
         self.physics.add_robot(rid, x, y)
         self._pose_pubs[rid] = self.session.declare_publisher(
-            keys.pose_key(self.cfg.swarm, rid), express=True
+            keys.pose_key(self.cfg.swarm, rid), express=False
         )
         self._prev_pos[rid] = (x, y)
         self._event("join", robot=rid, x=round(x, 6), y=round(y, 6), n_live=len(self.physics.ids))
@@ -605,9 +604,13 @@ class World:
     # ------------------------------------------------------------------ phases
 
     def _measure(self, pos: Array, C: Array) -> tuple[float, float]:
-        """(formation error, farthest robot from its slot) in metres."""
+        """(formation error, farthest robot from its slot) in metres.
+
+        The centred optimal assignment (formation.assign_slots, no hysteresis): the
+        error is its RMS slot distance, "formed" is its largest within tolerance.
+        """
         slots = assign_slots(pos, C)
-        d = slot_distances(pos, C, slots)
+        d = np.linalg.norm(centred(pos) - centred(C)[slots], axis=1)
         return float(np.sqrt(np.mean(d * d))), float(d.max())
 
     def _run_phase(self, index: int, name: str) -> PhaseResult:
