@@ -26,8 +26,10 @@ import argparse
 import hashlib
 import importlib.util
 import json
+import os
 import statistics
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -163,7 +165,13 @@ def decision_latency(
             pos = pos + W.dt_s * vel
     a = np.array(lat[:samples])
     c = np.array(cpu[:samples])
+    # On a shared machine other processes' bursts land in some stretches of the
+    # run: also report the quietest of 5 consecutive rounds.
+    rounds = np.array_split(a, 5)
+    best = min(rounds, key=lambda r: float(np.percentile(r, 99)))
     return {
+        "best_round_p50_us": float(np.percentile(best, 50)),
+        "best_round_p99_us": float(np.percentile(best, 99)),
         "p50_us": float(np.percentile(a, 50)),
         "p99_us": float(np.percentile(a, 99)),
         "cpu_p50_us": float(np.percentile(c, 50)),
@@ -300,10 +308,6 @@ def main() -> int:
     ap.add_argument("--skip-processes", action="store_true", help="decision latency only")
     args = ap.parse_args()
     samples = 1500 if args.quick else args.samples
-    import tempfile
-
-    import os
-
     out: dict[str, Any] = {
         "decision": [],
         "machine": {"cpus": os.cpu_count(), "load_avg_1min_at_start": os.getloadavg()[0]},
@@ -340,7 +344,7 @@ def main() -> int:
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
-    out["machine"]["load_avg_1min_at_end"] = __import__("os").getloadavg()[0]
+    out["machine"]["load_avg_1min_at_end"] = os.getloadavg()[0]
     m = out["machine"]
     print(
         f"machine: {m['cpus']} CPUs, 1-min load average {m['load_avg_1min_at_start']:.2f} "
@@ -349,14 +353,16 @@ def main() -> int:
     print(f"ONNX brain: {out['onnx_brain']}")
     print("\nDecision latency per robot (assignment + observation + brain + safety filter):")
     print("(wall clock, and the thread's CPU time, which leaves out preemption by other load)")
+    print("(best round: the quietest fifth of the run, by p99)")
     print(
         f"{'N':>4} {'brain':<12} {'safety':<6} {'p50 us':>8} {'p99 us':>8} "
-        f"{'cpu p50':>8} {'cpu p99':>8} {'filter %':>9}"
+        f"{'cpu p50':>8} {'cpu p99':>8} {'best p50':>9} {'best p99':>9} {'filter %':>9}"
     )
     for r in out["decision"]:
         print(
             f"{r['n']:>4} {r['brain']:<12} {r['safety']:<6} {r['p50_us']:>8.1f} "
             f"{r['p99_us']:>8.1f} {r['cpu_p50_us']:>8.1f} {r['cpu_p99_us']:>8.1f} "
+            f"{r['best_round_p50_us']:>9.1f} {r['best_round_p99_us']:>9.1f} "
             f"{100 * r['filter_share']:>8.1f}%"
         )
     o = out["onnxruntime_alone_us"]
