@@ -1,9 +1,15 @@
 """The training world: E independent envs of N disc robots, batch-first numpy.
 
-Every array is shaped ``(E, N, ...)`` (envs, robots, ...); nothing loops over
-robots, and the only loop over envs on the hot path is scipy's assignment
-solver, and only for the envs whose previous assignment stopped being optimal
-(see *Shared assignment* below). Units: metres, seconds, metres per second.
+Every public array is shaped ``(E, N, ...)`` (envs, robots, ...); nothing loops
+over robots, and the only loop over envs on the hot path is scipy's assignment
+solver, and only for the envs where the previous assignment is not proven to
+stand (see *Shared assignment* below). Units: metres, seconds, metres per second.
+
+Inside, the step keeps positions as ``(2, N, E)`` (component, robot, env) and
+pair arrays as ``(N, N, E)``: at these sizes numpy's cost is its inner loops,
+and with the env axis innermost a pairwise difference runs ~5x faster than
+over ``(E, N, N, 2)`` (whose innermost axis has length 2), and a reduction
+over robots ~7x faster than over a short trailing axis (measured here).
 
 Step (``BatchWorld.step``), in order
     1. **Actions** ``(E, N, 2)`` are velocities in m/s. A robot whose action
@@ -11,10 +17,11 @@ Step (``BatchWorld.step``), in order
        is scaled down to ``v_max`` (direction kept).
     2. **Kinematics** ``p += a dt`` (paper eq. 2).
     3. **Contact.** Robots are rigid discs of radius R: a pair whose straight
-       swept paths come closer than 2R during the step (closest approach by
-       :func:`runtime.formation.swept_pair_distance`, the function behind
-       ``count_collisions``) is a *collision* and counted, one per pair per
-       step, and charged to both robots. Overlaps left at the end of the move
+       swept paths come closer than 2R during the step (the closest approach of
+       :func:`runtime.formation.swept_pair_distance`, the definition behind
+       ``count_collisions``, computed here in the layout above; a test holds
+       the two equal) is a *collision* and counted, one per pair per step, and
+       charged to both robots. Overlaps left at the end of the move
        are resolved by a few vectorised Jacobi sweeps of pairwise projection:
        each overlapping pair is pushed apart symmetrically along its centre
        line to exactly 2R (sweeps after the first over-relax, so a jam of many
@@ -37,8 +44,11 @@ Step (``BatchWorld.step``), in order
        previous assignment (no cycle of slot exchanges beats it by the
        hysteresis margin: Bellman-Ford in numpy over the batch, see
        :func:`previous_assignment_kept`); only envs where that proof fails go
-       to the solver. The result is identical to calling ``assign_slots_batch`` on
-       every env (tested), at a fraction of the cost.
+       to the solver. The result is identical to calling ``assign_slots_batch``
+       on every env (tested). Slot positions, slot distances and the formation
+       error follow from the same cost matrix (``slot_positions``,
+       ``slot_distances``, ``formation_error_batch`` of the shared assignment;
+       tested equal).
     5. **Reward**, per robot, paper eq. 6 plus two documented extras::
 
            r_i = R_g + R_c * c_i + beta * r_p + w_prog * prog_i + B * formed
@@ -123,7 +133,6 @@ from runtime.formation import (
     assign_slots_batch,
     lower_bounds,
     slot_positions,
-    swept_pair_distance,
 )
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern, random_pattern
@@ -149,6 +158,9 @@ their centroid needs a median of 19 plain Jacobi sweeps (99th percentile 31) but
 6 (99th percentile 9, never more than 12) over-relaxed; an isolated pair is
 resolved by the first, plain sweep to exactly 2R."""
 
+ASSIGNMENT_SWEEPS = 10
+"""Most relaxation sweeps of the assignment proof per step (each costs a few
+microseconds over the whole batch); envs not proven by then go to scipy."""
 
 _MAX_START_DRAWS = 10_000
 
@@ -208,46 +220,114 @@ def _pattern_list(patterns: Sequence[str | Path] | str | Path) -> tuple[str, ...
     return names
 
 
-def previous_assignment_kept(P: Array, C: Array, previous: IntArray) -> BoolArray:
+def _robot_major(P: Array) -> Array:
+    """(E, N, 2) -> (2, N, E), contiguous."""
+    return np.ascontiguousarray(P.transpose(2, 1, 0))
+
+
+def _env_major(X: Array) -> Array:
+    """(2, N, E) -> (E, N, 2), contiguous."""
+    return np.ascontiguousarray(X.transpose(2, 1, 0))
+
+
+# ------------------------------------------------------------------- contacts
+
+
+def swept_contacts(X0: Array, U: Array, limit_m: float) -> BoolArray:
+    """Pairs whose closest approach during the straight moves X0 -> X0 + U is below ``limit_m``.
+
+    ``X0``, ``U``: (2, N, E) positions and displacements. Returns (N, N, E),
+    symmetric, False on the diagonal. The closest approach is that of
+    :func:`runtime.formation.swept_pair_distance` (relative motion
+    ``d(s) = d0 + s dd``, ``s`` in [0, 1]), in the robot-major layout.
+    """
+    d0 = X0[:, None, :, :] - X0[:, :, None, :]  # d0[k, i, j] = x_j - x_i
+    dd = U[:, None, :, :] - U[:, :, None, :]
+    a = d0[0] * d0[0] + d0[1] * d0[1]
+    b = d0[0] * dd[0] + d0[1] * dd[1]
+    c = dd[0] * dd[0] + dd[1] * dd[1]
+    moving = c > 0.0
+    s = np.where(moving, -b / np.where(moving, c, 1.0), 0.0)
+    np.clip(s, 0.0, 1.0, out=s)
+    closest2 = a + s * (2.0 * b + s * c)
+    hit = closest2 < limit_m * limit_m
+    n = X0.shape[1]
+    hit[np.arange(n), np.arange(n)] = False
+    out: BoolArray = hit
+    return out
+
+
+# ----------------------------------------------------------------- assignment
+
+
+def previous_assignment_kept(
+    P: Array, C: Array, previous: IntArray, sweeps: int | None = None
+) -> BoolArray:
     """Per env, whether ``assign_slots_batch(P, C, previous)`` surely returns ``previous``, (E,).
 
-    The solver keeps ``previous`` unless the optimum beats it by more than the
-    hysteresis margin ``m = HYSTERESIS_REL * old + HYSTERESIS_ABS_M2``. Any
-    other assignment differs from ``previous`` by disjoint cycles of slot
-    exchanges ("robot i takes robot j's slot", weight
-    ``cost[i, slot_j] - cost[i, slot_i]``), at most N robots in all. Bellman-Ford
-    from a virtual source (vectorised over envs) that settles with no
-    relaxation larger than ``m / (2N)`` proves every cycle of L robots weighs
-    at least ``-L m / (2N)``, so no assignment beats ``previous`` by more than
-    ``m / 2``: the solver would keep it. False means "not proven" (the caller
-    solves those envs exactly), so the result always equals the solver's.
+    False means "not proven": the caller solves those envs exactly, so the
+    outcome always equals the solver's.
+
+    The solver keeps ``previous`` unless the optimal assignment costs less than
+    ``old - m`` (``old`` the cost of ``previous``, ``m`` the hysteresis margin
+    ``HYSTERESIS_REL * old + HYSTERESIS_ABS_M2``; cost: summed squared distance
+    of centred positions to the centred pattern). With ``w_ij = cost[i, slot_j]
+    - cost[i, slot_i]`` (robot i takes robot j's slot) and any potentials
+    ``e``, ``r_i = min_j (w_ij + e_j)`` gives the feasible assignment dual
+    ``u_i = cost[i, slot_i] + r_i``, ``v_(slot_j) = -e_j``, whose value, a lower
+    bound on the optimal cost, is ``old - sum_i (e_i - r_i)``. So a gap
+    ``sum_i (e_i - r_i) <= m`` proves the solver keeps ``previous``. From
+    ``e = 0`` the gap is zero when every robot's own slot is its nearest (the
+    common case once a team is near its pattern); otherwise each sweep relaxes
+    ``e <- r`` (Bellman-Ford on the slot-exchange graph), which reaches a zero
+    gap within N sweeps when ``previous`` is optimal. ``sweeps`` (default N)
+    bounds the work; envs not proven by then are False.
     """
-    E, n = P.shape[0], P.shape[1]
-    Pc = P - P.mean(axis=1, keepdims=True)
-    Q = np.take_along_axis(C, previous[..., None], axis=1)  # Q[e, j]: robot j's slot point
-    Q = Q - Q.mean(axis=1, keepdims=True)
-    q2 = np.einsum("eik,eik->ei", Q, Q)
-    PQ = Pc @ Q.transpose(0, 2, 1)  # PQ[e, i, j] = Pc_i . Q_j
-    own = np.einsum("eii->ei", PQ)
-    # W[e, i, j] = |Pc_i - Q_j|^2 - |Pc_i - Q_i|^2
-    W = (q2[:, None, :] - q2[:, :, None]) - 2.0 * (PQ - own[:, :, None])
-    gap = Pc - Q
-    old = np.einsum("eik,eik->e", gap, gap)
-    tol = (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2) / (2.0 * n)
-    kept = np.zeros(E, dtype=bool)
-    active = np.arange(E)
-    d = np.minimum(W.min(axis=1), 0.0)  # one sweep from the virtual source (d = 0)
-    for _ in range(n):
-        nd = (d[:, :, None] + W).min(axis=1)
-        moving = (nd < d - tol[:, None]).any(axis=1)
-        kept[active[~moving]] = True
-        if moving.all():
-            d = nd
-            continue
-        if not moving.any():
-            break
-        active, d, W, tol = active[moving], nd[moving], W[moving], tol[moving]
+    Pc = _robot_major(P - P.mean(axis=1, keepdims=True))
+    Cc = C - C.mean(axis=1, keepdims=True)
+    Q = _robot_major(np.take_along_axis(Cc, previous[..., None], axis=1))
+    kept, _ = _kept_by_solver(Pc, Q, P.shape[1] if sweeps is None else sweeps)
     return kept
+
+
+def _kept_by_solver(Pc: Array, Q: Array, sweeps: int) -> tuple[BoolArray, Array]:
+    """:func:`previous_assignment_kept` on centred positions ``Pc`` and the centred
+    pattern point of every robot's slot ``Q``, both (2, N, E). Also returns each
+    robot's squared distance to its slot, (N, E)."""
+    n = Pc.shape[1]
+    dx = Pc[0][None, :, :] - Q[0][:, None, :]  # [j, i]: robot i to robot j's slot
+    dy = Pc[1][None, :, :] - Q[1][:, None, :]
+    cost = dx * dx + dy * dy
+    own = cost[np.arange(n), np.arange(n)]  # (N, E): |Pc_i - Q_i|^2
+    old = own.sum(axis=0)
+    allowed = (HYSTERESIS_REL * (1.0 - 1e-6)) * old + (HYSTERESIS_ABS_M2 * (1.0 - 1e-6) - 1e-12)
+    e = cost.min(axis=0) - own  # the first sweep, from e = 0
+    kept = -e.sum(axis=0) <= allowed
+    if sweeps <= 1 or kept.all():
+        return kept, own
+    # further sweeps only over the envs not proven yet
+    active = np.flatnonzero(~kept)
+    cost_a, own_a, allowed_a, e = cost[:, :, active], own[:, active], allowed[active], e[:, active]
+    for _ in range(sweeps - 1):
+        r = (cost_a + e[:, None, :]).min(axis=0) - own_a
+        ok = (e - r).sum(axis=0) <= allowed_a
+        if ok.any():
+            kept[active[ok]] = True
+            if ok.all():
+                break
+            rest = ~ok
+            active, cost_a, own_a, allowed_a = (
+                active[rest],
+                cost_a[:, :, rest],
+                own_a[:, rest],
+                allowed_a[rest],
+            )
+            r = r[:, rest]
+        e = r
+    return kept, own
+
+
+# ----------------------------------------------------------------------- world
 
 
 class BatchWorld:
@@ -298,27 +378,33 @@ class BatchWorld:
         E, N = n_envs, n_robots
         self._two_r = world.min_separation_m
         self._reach = world.max_step_m
-        self._diag_inf = np.where(np.eye(N, dtype=bool), np.inf, 0.0)
+        self._formed_tol2 = world.formed_tol_m**2
+        self._diag = np.arange(N)
         self._rngs = self._spawn_rngs(seed)
         self._cache: dict[str, Array] = {}
         self.patterns: tuple[str, ...] = ()
         self._set_pattern_names(_pattern_list(patterns))
 
-        # state; frames[:, 0] is now, frames[:, 1] one step earlier, frames[:, 2] two
+        # public state, (E, ...) first; frames[:, 0] now, [:, 1] one step earlier, [:, 2] two
         self.frames: Array = np.zeros((E, 3, N, 2))
-        self.pattern: Array = np.zeros((E, N, 2))
+        self.pattern: Array = np.zeros((E, N, 2))  # each env's target, centred
         self.pattern_ids: IntArray = np.zeros(E, dtype=np.int64)
         self.slots: IntArray = np.tile(np.arange(N, dtype=np.int64), (E, 1))
-        self.goals: Array = np.zeros((E, N, 2))  # slot positions of the shared assignment
         self.error: Array = np.zeros(E)  # formation error now (m)
         self.steps: IntArray = np.zeros(E, dtype=np.int64)
-        self.travel: Array = np.zeros((E, N))  # metres per robot this episode
         self.episode_collisions: IntArray = np.zeros(E, dtype=np.int64)
         self.episode_return: Array = np.zeros(E)
         self.lower_bound_steps: IntArray = np.zeros(E, dtype=np.int64)
         self.lower_bound_travel: Array = np.zeros(E)
-        self.last_robot_collisions: IntArray = np.zeros((E, N), dtype=np.int64)  # last step
-        self.contact_fallbacks = 0
+        self.contact_fallbacks = 0  # robots held still because a jam did not clear
+        self.assignment_solves = 0  # envs handed to scipy by step() (the rest proven kept)
+        # hot-path state, robot-major: (2, N, E) and (N, E)
+        self._X: Array = np.zeros((2, N, E))  # positions now
+        self._Q: Array = np.zeros((2, N, E))  # centred pattern point of each robot's slot
+        self._G: Array = np.zeros((2, N, E))  # each robot's slot in world coordinates
+        self._dist: Array = np.zeros((N, E))  # |position - slot|
+        self._travel: Array = np.zeros((N, E))
+        self._hits: IntArray = np.zeros((N, E), dtype=np.int64)
         self._obs: F32Array = np.zeros((E, N, self.obs_dim), dtype=np.float32)
         self.reset()
 
@@ -334,6 +420,21 @@ class BatchWorld:
     def prev_positions(self) -> Array:
         """(E, N, 2) positions one step earlier (equal to ``positions`` at a start)."""
         return self.frames[:, 1]
+
+    @property
+    def goals(self) -> Array:
+        """(E, N, 2) each robot's slot in world coordinates (the shared assignment's)."""
+        return _env_major(self._G)
+
+    @property
+    def travel(self) -> Array:
+        """(E, N) distance each robot travelled this episode (m)."""
+        return np.ascontiguousarray(self._travel.T)
+
+    @property
+    def last_robot_collisions(self) -> IntArray:
+        """(E, N) collisions each robot took part in during the last step."""
+        return np.ascontiguousarray(self._hits.T)
 
     # ------------------------------------------------------------ pattern set
 
@@ -361,6 +462,7 @@ class BatchWorld:
         if not retarget:
             return
         ids = np.arange(self.n_envs)
+        self.pattern = self.pattern.copy()
         for e in ids:
             self._draw_pattern(int(e))
         self._begin_episodes(ids)
@@ -371,10 +473,9 @@ class BatchWorld:
         rng = self._rngs[e]
         k = int(rng.integers(len(self.patterns)))
         name = self.patterns[k]
-        if name == RANDOM_PATTERN:
-            self.pattern[e] = random_pattern(rng, self.n_robots, self.world)
-        else:
-            self.pattern[e] = self._cache[name]
+        C = random_pattern(rng, self.n_robots, self.world) if name == RANDOM_PATTERN else None
+        C = self._cache[name] if C is None else C
+        self.pattern[e] = C - C.mean(axis=0)  # centred, as the assignment's cost centres it
         self.pattern_ids[e] = k
 
     # ------------------------------------------------------------------ reset
@@ -395,6 +496,11 @@ class BatchWorld:
             P[bad] = rng.uniform(0.0, side, (int(bad.sum()), 2))
         raise RuntimeError("could not draw separated starts; the arena is too crowded")
 
+    def _ids(self, env_ids: NDArray[np.integer] | None) -> IntArray:
+        if env_ids is None:
+            return np.arange(self.n_envs)
+        return np.asarray(env_ids, dtype=np.int64).reshape(-1)
+
     def reset(
         self, env_ids: NDArray[np.integer] | None = None, *, seed: int | None = None
     ) -> F32Array:
@@ -403,22 +509,15 @@ class BatchWorld:
         With ``seed`` the generators of the envs being reset are re-seeded first
         (env e from child e of ``SeedSequence(seed)``, as at construction).
         """
-        ids = (
-            np.arange(self.n_envs)
-            if env_ids is None
-            else np.asarray(env_ids, dtype=np.int64).reshape(-1)
-        )
+        ids = self._ids(env_ids)
         if seed is not None:
             fresh = self._spawn_rngs(seed)
             for e in ids:
                 self._rngs[int(e)] = fresh[int(e)]
-        self.frames = self.frames.copy()  # leave views handed out before as they were
+        self.frames = self.frames.copy()  # leave arrays handed out before as they were
+        self.pattern = self.pattern.copy()
         self._reset_envs(ids)
-        if self.build_obs:
-            obs = self._obs.copy()
-            obs[ids] = self._observe(ids)
-            self._obs = obs
-        return self._obs
+        return self._refresh_obs(ids)
 
     def reset_to(
         self, positions: NDArray[np.floating], env_ids: NDArray[np.integer] | None = None
@@ -428,16 +527,15 @@ class BatchWorld:
         The envs keep their current patterns; their generators are not used.
         Returns obs (E, N, D).
         """
-        ids = (
-            np.arange(self.n_envs)
-            if env_ids is None
-            else np.asarray(env_ids, dtype=np.int64).reshape(-1)
-        )
+        ids = self._ids(env_ids)
         P = np.asarray(positions, dtype=np.float64).reshape(len(ids), self.n_robots, 2)
         frames = self.frames.copy()
         frames[ids] = P[:, None]
         self.frames = frames
         self._begin_episodes(ids)
+        return self._refresh_obs(ids)
+
+    def _refresh_obs(self, ids: IntArray) -> F32Array:
         if self.build_obs:
             obs = self._obs.copy()
             obs[ids] = self._observe(ids)
@@ -445,6 +543,7 @@ class BatchWorld:
         return self._obs
 
     def _reset_envs(self, ids: IntArray) -> None:
+        """New pattern and starts for ``ids``, in place (the caller owns fresh arrays)."""
         if len(ids) == 0:
             return
         for e in ids:
@@ -459,11 +558,18 @@ class BatchWorld:
         C = self.pattern[ids]
         slots = assign_slots_batch(P, C)
         goals = slot_positions(P, C, slots)
+        gap = P - goals
+        dist = np.sqrt(np.einsum("eik,eik->ei", gap, gap))
+        self.slots = self.slots.copy()  # arrays handed out stay as they were
         self.slots[ids] = slots
-        self.goals[ids] = goals
-        self.error[ids] = np.sqrt(((P - goals) ** 2).sum(-1).mean(-1))
+        self.error = self.error.copy()
+        self.error[ids] = np.sqrt((dist**2).mean(axis=1))
+        self._X[:, :, ids] = P.transpose(2, 1, 0)
+        self._Q[:, :, ids] = np.take_along_axis(C, slots[..., None], axis=1).transpose(2, 1, 0)
+        self._G[:, :, ids] = goals.transpose(2, 1, 0)
+        self._dist[:, ids] = dist.T
+        self._travel[:, ids] = 0.0
         self.steps[ids] = 0
-        self.travel[ids] = 0.0
         self.episode_collisions[ids] = 0
         self.episode_return[ids] = 0.0
         if self.compute_bounds:
@@ -484,10 +590,11 @@ class BatchWorld:
         if self.obs_spec.name == "paper":
             obs = paper_observation(self.frames[sel])
         else:
+            goals = self._G.transpose(2, 1, 0)
             obs = general_observation(
                 self.frames[sel, 0],
                 self.frames[sel, 1],
-                self.goals[sel],
+                goals[sel],
                 k=self.obs_spec.k_neighbours,
                 world=self.world,
             )
@@ -499,127 +606,151 @@ class BatchWorld:
 
     # ------------------------------------------------------------------- step
 
-    def _clamp(self, actions: NDArray[np.floating]) -> Array:
-        a = np.array(actions, dtype=np.float64)  # a copy: never alter the caller's array
-        if a.shape != (self.n_envs, self.n_robots, 2):
-            raise ValueError(f"actions must be {(self.n_envs, self.n_robots, 2)}, got {a.shape}")
-        bad = ~np.isfinite(a).all(axis=-1)
-        if bad.any():
-            a[bad] = 0.0
-        speed = np.sqrt(a[..., 0] ** 2 + a[..., 1] ** 2)
-        v = self.world.v_max_mps
-        fast = speed > v
+    def _velocities(self, actions: NDArray[np.floating]) -> tuple[Array, Array]:
+        """Actions as robot-major velocities (2, N, E) within v_max (non-finite -> 0),
+        and their squared speeds (N, E)."""
+        shape = (self.n_envs, self.n_robots, 2)
+        a = np.asarray(actions)
+        if a.shape != shape:
+            raise ValueError(f"actions must be {shape}, got {a.shape}")
+        V = _robot_major(a.astype(np.float64, copy=False))  # a copy: the caller's is untouched
+        speed2 = V[0] * V[0] + V[1] * V[1]  # NaN or inf if any component is
+        v2 = self.world.v_max_mps**2
+        fast = ~(speed2 <= v2)
         if fast.any():
-            a[fast] *= (v / speed[fast])[:, None]
-        return a
+            bad = fast & ~np.isfinite(speed2)
+            V[:, bad] = 0.0
+            speed2[bad] = 0.0
+            fast &= ~bad
+            V[:, fast] *= np.sqrt(v2 / speed2[fast])
+            speed2[fast] = v2
+        return V, speed2
 
-    def _contacts(self, P0: Array, P1: Array, step_len: Array) -> tuple[Array, BoolArray]:
-        """Resolve overlaps after the move P0 -> P1; returns (positions, contact pairs (E,N,N))."""
-        E, N = self.n_envs, self.n_robots
+    def _resolve(self, X0: Array, X1: Array, hit: BoolArray) -> tuple[Array, BoolArray]:
+        """Push overlapping discs apart in the envs of ``hit`` (N, N, k); (2, N, k) arrays.
+
+        Returns the resolved positions and every pair that touched.
+        """
         limit = self._two_r - CONTACT_TOL_M
-        contact = np.zeros((E, N, N), dtype=bool)
-        # A pair can touch only if it starts closer than 2R plus both step lengths.
-        dx = P0[:, :, None, 0] - P0[:, None, :, 0]
-        dy = P0[:, :, None, 1] - P0[:, None, :, 1]
-        reach = limit + step_len[:, :, None] + step_len[:, None, :]
-        near = (dx * dx + dy * dy + self._diag_inf) < reach * reach
-        cand = np.flatnonzero(near.any(axis=(1, 2)))
-        if len(cand) == 0:
-            return P1, contact
-        swept = swept_pair_distance(P0[cand], P1[cand]) < limit
-        hit = swept.any(axis=(1, 2))
-        cand, swept = cand[hit], swept[hit]
-        if len(cand) == 0:
-            return P1, contact
-        contact[cand] = swept
-        P = P1.copy()
-        Pc, P0c = P1[cand].copy(), P0[cand]
-        touched = swept
+        X = X1.copy()
+        touched = hit.copy()
+        d_idx = self._diag
         relax = 1.0
         for _ in range(CONTACT_SWEEPS):
-            diff = Pc[:, :, None, :] - Pc[:, None, :, :]  # p_i - p_j
-            d = np.sqrt((diff**2).sum(-1) + self._diag_inf)
-            over = d < limit
+            diff = X[:, :, None, :] - X[:, None, :, :]  # [k, i, j]: x_i - x_j
+            d2 = diff[0] * diff[0] + diff[1] * diff[1]
+            d2[d_idx, d_idx] = 1e18  # no robot pushes itself
+            over = d2 < limit * limit
             if not over.any():
-                break
-            touched = touched | over
-            # direction i <- j; a pair on top of each other falls back to its start line
-            start = P0c[:, :, None, :] - P0c[:, None, :, :]
-            unit = np.where(
-                (d > 1e-12)[..., None],
-                diff / np.maximum(d, 1e-12)[..., None],
-                start / np.maximum(np.linalg.norm(start, axis=-1, keepdims=True), 1e-12),
-            )
-            push = np.where(over, (0.5 * relax) * (self._two_r - d), 0.0)
-            Pc = Pc + (push[..., None] * unit).sum(axis=2)
+                return X, touched
+            touched |= over
+            d = np.sqrt(d2)
+            flat = over & (d < 1e-12)
+            if flat.any():  # centres on top of each other: push along the line they came from
+                start = X0[:, :, None, :] - X0[:, None, :, :]
+                diff = np.where(flat, start, diff)
+                d = np.where(flat, np.sqrt(start[0] ** 2 + start[1] ** 2), d)
+            push = np.where(over, (0.5 * relax) * (self._two_r - d) / np.maximum(d, 1e-12), 0.0)
+            X += (diff * push).sum(axis=2)
             relax = CONTACT_OVER_RELAX
-        else:
-            # jammed: robots still overlapping hold their previous (valid) positions
-            for _ in range(N + 1):
-                diff = Pc[:, :, None, :] - Pc[:, None, :, :]
-                over = np.sqrt((diff**2).sum(-1) + self._diag_inf) < limit
-                stuck = over.any(axis=2)
-                if not stuck.any():
-                    break
-                self.contact_fallbacks += int(stuck.sum())
-                touched = touched | over
-                Pc[stuck] = P0c[stuck]
-        P[cand] = Pc
-        contact[cand] = touched
-        return P, contact
+        # jammed: robots still overlapping hold their previous (valid) positions
+        for _ in range(self.n_robots + 1):
+            diff = X[:, :, None, :] - X[:, None, :, :]
+            d2 = diff[0] * diff[0] + diff[1] * diff[1]
+            d2[d_idx, d_idx] = 1e18
+            over = d2 < limit * limit
+            stuck = over.any(axis=1)
+            if not stuck.any():
+                break
+            self.contact_fallbacks += int(stuck.sum())
+            touched |= over
+            X[:, stuck] = X0[:, stuck]
+        return X, touched
 
-    def _assign(self, P: Array) -> IntArray:
-        """The shared assignment, hysteresis included, solving only where it may have changed."""
-        keep = previous_assignment_kept(P, self.pattern, self.slots)
-        slots = self.slots.copy()
-        redo = np.flatnonzero(~keep)
-        if len(redo):
-            slots[redo] = assign_slots_batch(P[redo], self.pattern[redo], previous=self.slots[redo])
-        return slots
+    def _assign(self, X: Array) -> tuple[IntArray, Array]:
+        """The shared assignment, hysteresis included, solving only where it may have changed.
+
+        ``X`` (2, N, E) positions. Sets the slot points ``_Q`` and returns
+        (slots (E, N), squared distance of each robot to its slot (N, E)).
+        """
+        centroid = X.mean(axis=1, keepdims=True)
+        Pc = X - centroid
+        keep, dist2 = _kept_by_solver(Pc, self._Q, ASSIGNMENT_SWEEPS)
+        slots = self.slots
+        if not keep.all():
+            redo = np.flatnonzero(~keep)
+            self.assignment_solves += len(redo)
+            new = assign_slots_batch(
+                _env_major(X[:, :, redo]), self.pattern[redo], previous=slots[redo]
+            )
+            changed = (new != slots[redo]).any(axis=1)
+            if changed.any():
+                ids = redo[changed]
+                slots = slots.copy()
+                slots[ids] = new[changed]
+                Q = self.pattern[ids[:, None], new[changed]]  # (k, N, 2) slot points
+                self._Q = self._Q.copy()
+                self._Q[:, :, ids] = Q.transpose(2, 1, 0)
+                gap = Pc[:, :, ids] - self._Q[:, :, ids]
+                dist2[:, ids] = gap[0] * gap[0] + gap[1] * gap[1]
+        self._G = self._Q + centroid  # = slot_positions(P, pattern, slots): pattern is centred
+        return slots, dist2
 
     def step(self, actions: NDArray[np.floating]) -> StepResult:
         """Advance every env by one step; see the module docstring for the order of events."""
         cfg, w = self.reward_config, self.world
-        a = self._clamp(actions)
-        P0 = self.frames[:, 0]
-        intended = P0 + a * w.dt_s
-        step_len = np.sqrt(a[..., 0] ** 2 + a[..., 1] ** 2) * w.dt_s
-        P1, contact = self._contacts(P0, intended, step_len)
-        hits = contact.sum(axis=2)  # (E, N) collisions per robot
-        collisions: IntArray = hits.sum(axis=1) // 2
+        V, speed2 = self._velocities(actions)
+        X0 = self._X
+        U = V * w.dt_s
+        X1 = X0 + U
+        step_len = np.sqrt(speed2) * w.dt_s
+        self._travel += step_len
 
-        moved = P1 - P0
-        self.travel += np.sqrt(moved[..., 0] ** 2 + moved[..., 1] ** 2)
+        # contacts: collisions from the swept paths, overlaps pushed apart
+        hit = swept_contacts(X0, U, self._two_r - CONTACT_TOL_M)
+        touched_envs = np.flatnonzero(hit.any(axis=(0, 1)))
+        if len(touched_envs):
+            k = touched_envs
+            Xk, touched = self._resolve(X0[:, :, k], X1[:, :, k], hit[:, :, k])
+            X1[:, :, k] = Xk
+            hits = np.zeros_like(self._hits)
+            hits[:, k] = touched.sum(axis=1)
+            moved = Xk - X0[:, :, k]  # pushed robots travelled their actual displacement
+            self._travel[:, k] += np.sqrt(moved[0] ** 2 + moved[1] ** 2) - step_len[:, k]
+            collisions: IntArray = hits.sum(axis=0) // 2
+            self.episode_collisions += collisions
+        else:
+            hits = np.zeros_like(self._hits)
+            collisions = np.zeros(self.n_envs, dtype=np.int64)
 
-        slots = self._assign(P1)
-        goals = slot_positions(P1, self.pattern, slots)
-        gap = P1 - goals
-        dist = np.sqrt(gap[..., 0] ** 2 + gap[..., 1] ** 2)  # = slot_distances(P1, C, slots)
-        error = np.sqrt((dist**2).mean(axis=1))  # = formation_error_batch(P1, C, slots)
-        formed = dist.max(axis=1) <= w.formed_tol_m
+        # the shared assignment, once: slots, slot distances, error, formed
+        G_shown = self._G  # the slots the robots saw when they acted
+        slots, dist2 = self._assign(X1)
+        error = np.sqrt(dist2.mean(axis=0))  # = formation_error_batch(P, C, slots)
+        formed = dist2.max(axis=0) <= self._formed_tol2  # slot_distances(...) <= formed_tol
+        dist = np.sqrt(dist2)
 
-        reward = cfg.step_penalty + cfg.collision_penalty * hits
-        reward = reward + (cfg.beta / self._reach) * (self.error - error)[:, None]
+        # reward, (N, E): R_g + R_c * hits + beta * r_p + w * progress (+ bonus)
+        reward = cfg.collision_penalty * hits + cfg.step_penalty
+        reward += (cfg.beta / self._reach) * (self.error - error)
         if cfg.progress_weight:
-            before = P0 - self.goals
-            after = P1 - self.goals
-            prog = np.sqrt(before[..., 0] ** 2 + before[..., 1] ** 2) - np.sqrt(
-                after[..., 0] ** 2 + after[..., 1] ** 2
-            )
-            reward = reward + (cfg.progress_weight / self._reach) * prog
-        if cfg.formed_bonus:
-            reward = reward + cfg.formed_bonus * formed[:, None]
+            after = X1 - G_shown
+            after_len = np.sqrt(after[0] * after[0] + after[1] * after[1])
+            reward += (cfg.progress_weight / self._reach) * (self._dist - after_len)
+        if cfg.formed_bonus and formed.any():
+            reward[:, formed] += cfg.formed_bonus
+        reward_en = np.ascontiguousarray(reward.T, dtype=np.float32)
 
         frames = np.empty_like(self.frames)  # new array: views handed out stay as they were
-        frames[:, 0] = P1
+        frames[:, 0] = X1.transpose(2, 1, 0)
         frames[:, 1:] = self.frames[:, :2]
         self.frames = frames
-        self.slots, self.goals, self.error = slots, goals, error
-        self.last_robot_collisions = hits
+        self._X, self._dist, self._hits = X1, dist, hits
+        self.slots, self.error = slots, error
         self.steps += 1
-        self.episode_collisions += collisions
-        self.episode_return += reward.mean(axis=1)
-        truncated = ~formed & (self.steps >= self.step_limit)
+        self.episode_return += reward.mean(axis=0)
+        truncated = self.steps >= self.step_limit
+        truncated &= ~formed
         done = formed | truncated
 
         obs = self._observe()
@@ -630,7 +761,7 @@ class BatchWorld:
                 env_ids=ended,
                 formed=formed[ended],
                 steps=self.steps[ended].copy(),
-                travel=self.travel[ended].sum(axis=1),
+                travel=self._travel[:, ended].sum(axis=0),
                 collisions=self.episode_collisions[ended].copy(),
                 final_error=error[ended].copy(),
                 episode_return=self.episode_return[ended].copy(),
@@ -643,17 +774,19 @@ class BatchWorld:
                 if self.compute_bounds
                 else None,
             )
+            self.pattern = self.pattern.copy()
+            self._X, self._G = self._X.copy(), self._G.copy()
             self._reset_envs(ended)
             if self.build_obs:
                 obs[ended] = self._observe(ended)
         self._obs = obs
         return StepResult(
             obs=obs,
-            reward=reward.astype(np.float32),
+            reward=reward_en,
             done=done,
             formed=formed,
             truncated=truncated,
-            collisions=collisions.astype(np.int64),
+            collisions=collisions,
             episode=episode,
         )
 
@@ -667,4 +800,5 @@ __all__ = [
     "RewardConfig",
     "StepResult",
     "previous_assignment_kept",
+    "swept_contacts",
 ]

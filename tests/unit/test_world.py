@@ -10,10 +10,12 @@ from hypothesis import strategies as st
 
 from runtime.formation import (
     assign_slots_batch,
+    count_collisions,
     formation_error_batch,
     min_separation,
     slot_distances,
     slot_positions,
+    swept_pair_distance,
 )
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern
@@ -24,6 +26,7 @@ from trainer.world import (
     BatchWorld,
     RewardConfig,
     previous_assignment_kept,
+    swept_contacts,
 )
 
 W = DEFAULT_WORLD
@@ -96,7 +99,7 @@ def test_patterns_drawn_per_env_and_random_shapes() -> None:
     assert set(w.pattern_ids.tolist()) == {0, 1}
     for e in range(16):
         name = w.patterns[w.pattern_ids[e]]
-        np.testing.assert_array_equal(w.pattern[e], make_pattern(name, 6))
+        np.testing.assert_allclose(w.pattern[e], make_pattern(name, 6), atol=1e-12)
     r = make(n_envs=4, patterns="random")
     assert not np.allclose(r.pattern[0], r.pattern[1])
     assert np.all(min_separation(r.pattern) >= TWO_R)
@@ -193,6 +196,23 @@ def test_no_overlap_after_any_step(seed: int, n: int) -> None:
     assert np.all(res.collisions >= 0)
 
 
+@settings(max_examples=40)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 9), spread=st.sampled_from([0.5, 1.5, 4.0]))
+def test_swept_contacts_is_the_runtime_collision_check(seed: int, n: int, spread: float) -> None:
+    rng = np.random.default_rng(seed)
+    E = 6
+    P0 = rng.uniform(0, spread, (E, n, 2))
+    P1 = P0 + rng.uniform(-REACH, REACH, (E, n, 2))
+    P1[0, 0], P1[0, 1] = P0[0, 1], P0[0, 0]  # two robots swap places: they pass through
+    limit = TWO_R - CONTACT_TOL_M
+    ours = swept_contacts(P0.transpose(2, 1, 0), (P1 - P0).transpose(2, 1, 0), limit)
+    theirs = swept_pair_distance(P0, P1) < limit
+    np.testing.assert_array_equal(ours.transpose(2, 0, 1), theirs)
+    np.testing.assert_array_equal(
+        np.triu(ours.transpose(2, 0, 1), 1).sum(axis=(1, 2)), count_collisions(P0, P1)
+    )
+
+
 # ---------------------------------------------------------------- assignment
 
 
@@ -207,8 +227,12 @@ def test_assignment_shortcut_equals_solver(seed: int, scale: float) -> None:
     for _ in range(5):
         P = P + rng.normal(0, scale, P.shape)
         kept = previous_assignment_kept(P, C, prev)
+        quick = previous_assignment_kept(P, C, prev, sweeps=1)
         full = assign_slots_batch(P, C, previous=prev)
-        assert np.all(full[kept] == prev[kept])
+        assert np.all(full[kept] == prev[kept])  # sound: "kept" is what the solver does
+        assert np.all(kept[quick])
+        optimal = (assign_slots_batch(P, C) == prev).all(axis=1)
+        assert np.all(kept[optimal])  # complete: an optimal assignment is always proven
         prev = full
 
 
@@ -363,7 +387,7 @@ def test_general_observation_matches_runtime_builder() -> None:
         res = w.step(rng.uniform(-1, 1, (3, 7, 2)))
     assert res.obs.shape == (3, 7, GENERAL.dim) and res.obs.dtype == np.float32
     goals = slot_positions(w.positions, w.pattern, w.slots)
-    np.testing.assert_array_equal(goals, w.goals)
+    np.testing.assert_allclose(goals, w.goals, rtol=0, atol=1e-12)
     expect = general_observation(w.positions, w.prev_positions, goals, k=4, world=W)
     np.testing.assert_allclose(res.obs, expect.astype(np.float32))
     # the world's error and slot distances are the runtime's
@@ -405,10 +429,10 @@ def test_set_patterns_retargets_from_where_robots_stand() -> None:
     here = w.positions.copy()
     w.set_patterns(["line"])
     np.testing.assert_array_equal(w.positions, here)
-    np.testing.assert_array_equal(w.pattern, np.stack([make_pattern("line", 6)] * 2))
+    np.testing.assert_allclose(w.pattern, np.stack([make_pattern("line", 6)] * 2), atol=1e-12)
     assert np.all(w.steps == 0)
     assert w.observe().shape == (2, 6, GENERAL.dim)
     w.set_patterns(["cross"], retarget=False)
-    np.testing.assert_array_equal(w.pattern[0], make_pattern("line", 6))
+    np.testing.assert_allclose(w.pattern[0], make_pattern("line", 6), atol=1e-12)
     w.reset()
-    np.testing.assert_array_equal(w.pattern[0], make_pattern("cross", 6))
+    np.testing.assert_allclose(w.pattern[0], make_pattern("cross", 6), atol=1e-12)
