@@ -92,6 +92,7 @@ Array = NDArray[np.float64]
 
 HEAVY_MODULES = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
 MAX_STATUS_TEXT = 400
+MAX_COORD_M = 1e6  # a pose farther from the origin is malformed (and would overflow costs)
 SWAP_QUEUE = 4
 
 
@@ -296,6 +297,9 @@ class Robot:
             return
         if pose.n_live < 1:
             self._drop("pose", f"n_live {pose.n_live}")
+            return
+        if max(abs(pose.x), abs(pose.y)) > MAX_COORD_M:
+            self._drop("pose", f"position ({pose.x:g}, {pose.y:g}) beyond {MAX_COORD_M:g} m")
             return
         now = time.monotonic()
         with self._cond:
@@ -544,7 +548,11 @@ class Robot:
         if pattern is None:
             d = Decision((0.0, 0.0), (0.0, 0.0), False, 0.0, 0.0, why)
         else:
-            d = self.controller.decide(ids.index(self.id), pos, pattern, step)
+            try:
+                d = self.controller.decide(ids.index(self.id), pos, pattern, step)
+            except Exception as e:  # whatever arrives, the loop goes on, holding still
+                self.controller.reset()
+                d = Decision((0.0, 0.0), (0.0, 0.0), False, 0.0, 0.0, f"decision failed: {e}")
         if d.error:
             if pattern is not None:  # waiting for a pattern is not an error
                 with self._count_lock:

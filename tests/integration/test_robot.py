@@ -83,6 +83,7 @@ def malformed_payloads(rid: int, seed: int = 0) -> list[tuple[str, bytes]]:
         ("pose", bytes([Tag.POSE, 99]) + good_pose[2:]),
         ("pose", nan_pose),
         ("pose_other_id", good_pose),  # robot_id in the payload disagrees with the key
+        ("pose", encode_pose(Pose(rid, 5, 0.0, 1e300, 1.0, 0.0, 0.0, 4))),  # finite, absurd
         ("pattern", pattern[:10]),
         ("pattern", bytes(nan_pattern)),
         ("pattern", dense),
