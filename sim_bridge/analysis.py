@@ -261,21 +261,21 @@ def check_log_file(path: str | Path) -> Path:
     return p
 
 
-def iter_messages(path: str | Path, recovery: Recovery | None = None) -> Iterator[Raw]:
-    """Every message of a log, in file order, up to the last complete chunk.
+def _blocks(path: str | Path, rec: Recovery) -> Iterator[bytes]:
+    """The log's content as record sequences, up to the last complete chunk.
 
-    Raises :class:`LogError` for a file that is missing or not an MCAP file; a
-    log cut short is not an error: iteration stops and ``recovery`` tells.
+    Yields each chunk's records (decompressed, CRC checked) and each top-level
+    schema, channel or message record (chunkless writers) as the bytes of that
+    one record; consumers walk them with the same loop. Raises :class:`LogError` for a file that
+    is missing or not an MCAP file; a log cut short is not an error: it stops,
+    and ``rec`` says where and why.
     """
     p = check_log_file(path)
-    rec = recovery if recovery is not None else Recovery()
     data = p.read_bytes()
     n = len(data)
     rec.file_bytes = n
-    state = _Records()
     pos = len(MAGIC)
     rec.bytes_read = pos
-    batch: list[Raw] = []
     while True:
         if pos + 9 > n:
             rec.error = ("the file ends without a footer: the writer did not finish"
@@ -287,6 +287,7 @@ def iter_messages(path: str | Path, recovery: Recovery | None = None) -> Iterato
         if end > n:
             rec.error = f"incomplete record (opcode {op}) at byte {pos}: {end - n} bytes missing"
             break
+        out: bytes | None = None
         try:
             if op == _OP_CHUNK:
                 _, _, size, crc = _CHUNK.unpack_from(data, s)
@@ -294,18 +295,14 @@ def iter_messages(path: str | Path, recovery: Recovery | None = None) -> Iterato
                 (clen,) = _U64.unpack_from(data, q)
                 if q + 8 + clen > end:
                     raise ValueError("chunk data runs past its record")
-                raw = _decompress(comp, memoryview(data)[q + 8 : q + 8 + clen], size)
-                if len(raw) != size:
-                    raise ValueError(f"chunk decompressed to {len(raw)} bytes, expected {size}")
-                if crc != 0 and zlib.crc32(raw) != crc:
+                out = _decompress(comp, memoryview(data)[q + 8 : q + 8 + clen], size)
+                if len(out) != size:
+                    raise ValueError(f"chunk decompressed to {len(out)} bytes, expected {size}")
+                if crc != 0 and zlib.crc32(out) != crc:
                     raise ValueError("chunk CRC mismatch")
-                batch.clear()
-                state.block(raw, batch)  # whole chunk first: a bad chunk yields nothing
                 rec.chunks += 1
-            elif op == _OP_MESSAGE:
-                cid, seq, lt, pt = _MSG.unpack_from(data, s)
-                batch.clear()
-                batch.append((state.channels[cid], lt, pt, seq, data[s + 22 : end]))
+            elif op == _OP_MESSAGE or op == _OP_SCHEMA or op == _OP_CHANNEL:
+                out = data[pos:end]
             elif op == _OP_FOOTER:
                 rec.finished = True
                 rec.bytes_read = end
@@ -315,11 +312,7 @@ def iter_messages(path: str | Path, recovery: Recovery | None = None) -> Iterato
             elif op == _OP_HEADER:
                 rec.profile, q = _string(data, s)
                 rec.library, _ = _string(data, q)
-                batch.clear()
-            else:
-                state.other(op, memoryview(data)[s:end])
-                batch.clear()
-        except (ValueError, KeyError, struct.error, UnicodeDecodeError) as e:
+        except (ValueError, struct.error, UnicodeDecodeError) as e:
             rec.error = f"unreadable record (opcode {op}) at byte {pos}: {e}"[:200]
             break
         except Exception as e:  # a decompressor's own error types
@@ -327,12 +320,30 @@ def iter_messages(path: str | Path, recovery: Recovery | None = None) -> Iterato
             break
         pos = end
         rec.bytes_read = end
-        if batch:
-            rec.messages += len(batch)
-            yield from batch
-            batch.clear()
-    if rec.bytes_read <= len(MAGIC) and rec.messages == 0 and not rec.profile and rec.error:
+        if out is not None:
+            yield out
+    if rec.bytes_read <= len(MAGIC) and not rec.profile and rec.error:
         raise LogError(f"{p}: not a readable MCAP log ({rec.error})")
+
+
+def iter_messages(path: str | Path, recovery: Recovery | None = None) -> Iterator[Raw]:
+    """Every message of a log, in file order, up to the last complete chunk.
+
+    Raises :class:`LogError` for a file that is missing or not an MCAP file; a
+    log cut short is not an error: iteration stops and ``recovery`` tells.
+    """
+    rec = recovery if recovery is not None else Recovery()
+    state = _Records()
+    batch: list[Raw] = []
+    for buf in _blocks(path, rec):
+        try:
+            state.block(buf, batch)  # the whole chunk first: a bad chunk yields nothing
+        except (ValueError, KeyError, struct.error, UnicodeDecodeError) as e:
+            rec.error = f"unreadable record inside a chunk: {e}"[:200]
+            return
+        rec.messages += len(batch)
+        yield from batch
+        batch.clear()
 
 
 # ============================================================================ decoding
@@ -425,9 +436,10 @@ def _decode_poses(raw: list[bytes], idx: list[int], key_rid: list[int]
                   ) -> tuple[NDArray[Any], IntArray, int]:
     """Structured pose records and their message indices; (records, indices, malformed)."""
     size = POSE_DTYPE.itemsize
-    ok_len = [k for k, b in enumerate(raw) if len(b) == size]
-    bad = len(raw) - len(ok_len)
-    if len(ok_len) != len(raw):
+    bad = 0
+    if set(map(len, raw)) - {size}:  # rare: payloads of the wrong size are malformed
+        ok_len = [k for k, b in enumerate(raw) if len(b) == size]
+        bad = len(raw) - len(ok_len)
         raw = [raw[k] for k in ok_len]
         idx = [idx[k] for k in ok_len]
         key_rid = [key_rid[k] for k in ok_len]
@@ -443,9 +455,13 @@ def _decode_poses(raw: list[bytes], idx: list[int], key_rid: list[int]
 
 
 def _decode_commands(raw: list[bytes], key_rid: list[int]) -> tuple[Commands, int]:
-    by_len: dict[int, list[int]] = defaultdict(list)
-    for k, b in enumerate(raw):
-        by_len[len(b)].append(k)
+    lengths = list(map(len, raw))
+    by_len: dict[int, list[int]] = {}
+    if len(set(lengths)) == 1:  # the usual case: one brain id length for the whole run
+        by_len[lengths[0]] = list(range(len(raw)))
+    else:
+        for k, n in enumerate(lengths):
+            by_len.setdefault(n, []).append(k)
     cols: list[tuple[IntArray, IntArray, Array, BoolArray, list[str], IntArray]] = []
     bad = 0
     for length, ks in by_len.items():
@@ -454,7 +470,8 @@ def _decode_commands(raw: list[bytes], key_rid: list[int]) -> tuple[Commands, in
             bad += len(ks)
             continue
         dt = np.dtype([*_CMD_FIXED, ("brain", f"S{blen}")]) if blen else np.dtype(_CMD_FIXED)
-        rec = np.frombuffer(b"".join(raw[k] for k in ks), dtype=dt)
+        joined = b"".join(raw) if len(ks) == len(raw) else b"".join([raw[k] for k in ks])
+        rec = np.frombuffer(joined, dtype=dt)
         good = (
             (rec["tag"] == Tag.COMMAND) & (rec["version"] == WIRE_VERSION)
             & (rec["brain_len"] == blen) & (rec["safety_changed"] <= 1)
@@ -513,71 +530,105 @@ def _world_from(events: list[dict[str, Any]]) -> WorldConfig:
     return DEFAULT_WORLD
 
 
+_OTHER, _POSE, _CMD, _PATTERN, _EVENT, _METRIC = range(6)
+
+
+def _kind(ch: ChannelInfo) -> tuple[int, int]:
+    """(what the analysis does with a channel's messages, robot id on its key or -1)."""
+    if ch.message_encoding == WIRE_ENCODING:
+        tail = ch.topic.rsplit("/", 1)[-1]
+        k = {"pose": _POSE, "cmd": _CMD, "pattern": _PATTERN}.get(tail, _OTHER)
+    else:
+        k = {EVENTS_TOPIC: _EVENT, METRICS_TOPIC: _METRIC}.get(ch.topic, _OTHER)
+    return k, _robot_of(ch.topic)
+
+
 def read_log(path: str | Path) -> LogData:
-    """Read and decode a log (finished or cut short); :class:`LogError` if it is no log."""
+    """Read and decode a log (finished or cut short); :class:`LogError` if it is no log.
+
+    One pass over the records: pose and command payloads are only collected here
+    (decoded column-wise afterwards), JSON is parsed for events and metrics only,
+    every other message is just counted.
+    """
     recovery = Recovery()
-    kinds: dict[int, tuple[int, int]] = {}  # channel id -> (kind, robot id on the key)
+    state = _Records()
+    kind: dict[int, int] = {}
+    key_rid: dict[int, int] = {}
+    counts: dict[int, int] = {}
     pose_raw: list[bytes] = []
     pose_idx: list[int] = []
     pose_rid: list[int] = []
     cmd_raw: list[bytes] = []
     cmd_rid: list[int] = []
+    json_msgs: list[tuple[int, bytes]] = []
+    patterns: list[PatternMark] = []
+    malformed = 0
+    first_ns = last_ns = -1
+    i = 0  # messages so far
+    unpack_rec, unpack_msg = _REC.unpack_from, _MSG.unpack_from
+    for buf in _blocks(path, recovery):
+        p, n = 0, len(buf)
+        try:
+            while p < n:
+                op, length = unpack_rec(buf, p)
+                s = p + 9
+                p = s + length
+                if p > n:
+                    raise ValueError("record runs past its chunk")
+                if op != _OP_MESSAGE:
+                    state.other(op, memoryview(buf)[s:p])
+                    for cid, ch in state.channels.items():
+                        if cid not in kind:
+                            kind[cid], key_rid[cid] = _kind(ch)
+                            counts[cid] = 0
+                    continue
+                cid, _seq, lt, _pt = unpack_msg(buf, s)
+                k = kind[cid]
+                counts[cid] += 1
+                if first_ns < 0:
+                    first_ns = lt
+                last_ns = lt
+                if k == _POSE:
+                    pose_raw.append(buf[s + 22 : p])
+                    pose_idx.append(i)
+                    pose_rid.append(key_rid[cid])
+                elif k == _CMD:
+                    cmd_raw.append(buf[s + 22 : p])
+                    cmd_rid.append(key_rid[cid])
+                elif k == _EVENT or k == _METRIC:
+                    json_msgs.append((k, buf[s + 22 : p]))
+                elif k == _PATTERN:
+                    try:
+                        pm = decode_pattern(buf[s + 22 : p])
+                    except MessageError:
+                        malformed += 1
+                    else:
+                        if not patterns or patterns[-1].msg.version != pm.version:
+                            patterns.append(PatternMark(pm, i, lt))
+                i += 1
+        except (ValueError, KeyError, struct.error, UnicodeDecodeError) as e:
+            recovery.error = f"unreadable record inside a chunk: {e}"[:200]
+            break
+    recovery.messages = i
     events: list[dict[str, Any]] = []
     metrics: list[dict[str, Any]] = []
-    patterns: list[PatternMark] = []
-    topics: Counter[str] = Counter()
-    malformed = 0
-    first_ns = last_ns = 0
-    i = -1
-    OTHER, POSE, CMD, PATTERN, EVENT, METRIC = range(6)
-    for ch, lt, _pt, _seq, data in iter_messages(path, recovery):
-        i += 1
-        if i == 0:
-            first_ns = lt
-        last_ns = lt
-        kr = kinds.get(ch.id)
-        if kr is None:
-            topics[ch.topic] = 0
-            tail = ch.topic.rsplit("/", 1)[-1]
-            if ch.message_encoding == WIRE_ENCODING:
-                k = {"pose": POSE, "cmd": CMD, "pattern": PATTERN}.get(tail, OTHER)
-            else:
-                k = {EVENTS_TOPIC: EVENT, METRICS_TOPIC: METRIC}.get(ch.topic, OTHER)
-            kr = kinds[ch.id] = (k, _robot_of(ch.topic))
-        topics[ch.topic] += 1
-        k = kr[0]
-        if k == POSE:
-            pose_raw.append(data)
-            pose_idx.append(i)
-            pose_rid.append(kr[1])
-        elif k == CMD:
-            cmd_raw.append(data)
-            cmd_rid.append(kr[1])
-        elif k == METRIC or k == EVENT:
-            try:
-                obj = json.loads(data)
-            except (ValueError, UnicodeDecodeError):
-                malformed += 1
-                continue
-            if isinstance(obj, dict):
-                (events if k == EVENT else metrics).append(obj)
-            else:
-                malformed += 1
-        elif k == PATTERN:
-            try:
-                pm = decode_pattern(data)
-            except MessageError:
-                malformed += 1
-                continue
-            if not patterns or patterns[-1].msg.version != pm.version:
-                patterns.append(PatternMark(pm, i, lt))
+    for k, raw in json_msgs:
+        try:
+            obj = json.loads(raw)
+        except (ValueError, UnicodeDecodeError):
+            obj = None
+        if isinstance(obj, dict):
+            (events if k == _EVENT else metrics).append(obj)
+        else:
+            malformed += 1
     prec, pidx, bad_p = _decode_poses(pose_raw, pose_idx, pose_rid)
     cmds, bad_c = _decode_commands(cmd_raw, cmd_rid)
+    topics = {state.channels[cid].topic: c for cid, c in counts.items() if c}
     return LogData(
         path=str(path), recovery=recovery, events=events, metrics=metrics,
-        frames=_frames(prec, pidx), commands=cmds, patterns=patterns, topics=dict(topics),
-        malformed=malformed + bad_p + bad_c, first_log_ns=first_ns, last_log_ns=last_ns,
-        world=_world_from(events),
+        frames=_frames(prec, pidx), commands=cmds, patterns=patterns, topics=topics,
+        malformed=malformed + bad_p + bad_c, first_log_ns=max(first_ns, 0),
+        last_log_ns=max(last_ns, 0), world=_world_from(events),
     )
 
 
@@ -709,11 +760,15 @@ class PhaseReport:
 
 @dataclass
 class StepSeries:
-    """Per recorded step, for the error plot: (S,) arrays, phase = -1 outside any phase."""
+    """One phase, per recorded step from its start to its end: (S,) arrays for the error plot.
 
+    A phase's last step is also the next phase's first (measured against each one's
+    pattern), so it appears in both.
+    """
+
+    phase: int
     step: IntArray
     time_s: Array
-    phase: IntArray
     formation_error_m: Array
     min_separation_m: Array
 
@@ -736,8 +791,18 @@ class RunReport:
     malformed: int
     topics: dict[str, int]
     phases: list[PhaseReport]
-    series: StepSeries
+    series: list[StepSeries]
     world: WorldConfig
+    phase_patterns: list[list[PhasePattern]] = field(default_factory=list)
+    """Each phase's patterns (its first and its resizes), for pictures; not in the JSON."""
+
+    def pattern_at(self, phase: int, step: int) -> Array | None:
+        """The pattern in force in ``phase`` at ``step``."""
+        if not 0 <= phase < len(self.phase_patterns) or not self.phase_patterns[phase]:
+            return None
+        pats = self.phase_patterns[phase]
+        k = max(0, int(np.searchsorted([p.step for p in pats], step, side="right")) - 1)
+        return pats[k].points
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form (``--json``)."""
@@ -769,36 +834,64 @@ def _r(x: float | None, nd: int = 6) -> float | None:
 def _formation(xy: Array, C: Array) -> tuple[Array, Array]:
     """(formation error, farthest robot from its slot) per row of xy (T, n, 2), metres.
 
-    The world's measure (centred optimal assignment by squared distance), row by row.
+    The world's measure, row by row: the assignment minimising the summed squared
+    distance between the centred team and the centred pattern, then each robot's
+    distance to its slot (the pattern placed on the team's centroid).
     """
     from scipy.optimize import linear_sum_assignment
 
-    P = xy - xy.mean(axis=1, keepdims=True)
+    centroid = xy.mean(axis=1, keepdims=True)
     Cc = C - C.mean(axis=0, keepdims=True)
-    d = P[:, :, None, :] - Cc[None, None, :, :]
+    d = (xy - centroid)[:, :, None, :] - Cc[None, None, :, :]
     cost = np.einsum("tijk,tijk->tij", d, d)
-    T = len(xy)
-    err = np.empty(T)
-    far = np.empty(T)
-    for t in range(T):
-        _, c = linear_sum_assignment(cost[t])
-        # slot distance as the world measures it: the slot is placed on the team's centroid
-        dist = np.linalg.norm(xy[t] - (Cc[c] + xy[t].mean(axis=0)), axis=1)
-        err[t] = math.sqrt(float(np.mean(dist * dist)))
-        far[t] = float(dist.max())
+    cols = np.empty(xy.shape[:2], np.int64)
+    for t in range(len(xy)):
+        cols[t] = linear_sum_assignment(cost[t])[1]
+    dist = np.linalg.norm((xy - centroid) - Cc[cols], axis=-1)
+    err: Array = np.sqrt(np.mean(dist * dist, axis=1))
+    far: Array = dist.max(axis=1)
     return err, far
 
 
 def _min_sep_rows(xy: Array) -> Array:
-    """Smallest centre distance per row of xy (T, m, 2) with NaN for absent robots (inf if < 2)."""
-    if xy.shape[1] < 2:
-        return np.full(len(xy), np.inf)
-    d = np.linalg.norm(xy[:, :, None, :] - xy[:, None, :, :], axis=-1)
+    """Smallest centre distance per row of xy (T, m, 2), NaN for absent robots (inf if < 2)."""
     m = xy.shape[1]
-    d[:, np.arange(m), np.arange(m)] = np.inf
-    d = np.where(np.isnan(d), np.inf, d)
-    out: Array = d.min(axis=(1, 2))
+    if m < 2 or len(xy) == 0:
+        return np.full(len(xy), np.inf)
+    iu, ju = np.triu_indices(m, 1)
+    diff = xy[:, iu, :] - xy[:, ju, :]
+    d2 = np.einsum("tpk,tpk->tp", diff, diff)
+    d2 = np.where(np.isnan(d2), np.inf, d2)
+    out: Array = np.sqrt(d2.min(axis=1))
     return out
+
+
+def _collisions(xy: Array, ids: IntArray, sep: Array, min_sep_m: float) -> int:
+    """Pairs that start overlapping during a step, over consecutive rows of xy (T, m, 2).
+
+    The swept test of :func:`runtime.formation.swept_pair_distance` runs only on
+    steps where two discs could meet: the closest pair at either end within 2R
+    plus the largest move of that step (twice, for two robots closing in).
+    """
+    if len(xy) < 2:
+        return 0
+    hop = np.linalg.norm(np.diff(xy, axis=0), axis=-1)
+    reach = 2.0 * np.nanmax(np.where(np.isnan(hop), 0.0, hop), axis=1)
+    near = np.minimum(sep[:-1], sep[1:]) < min_sep_m + reach
+    count = 0
+    prev: set[tuple[int, int]] = set()
+    prev_t = -2
+    for t in np.nonzero(near)[0].tolist():
+        sw = swept_pair_distance(xy[t], xy[t + 1])
+        a, b = np.nonzero(np.triu(sw < min_sep_m - 1e-6, 1))
+        if len(a) == 0:
+            continue
+        pairs = {(int(ids[i]), int(ids[j])) for i, j in zip(a, b, strict=True)}
+        if t != prev_t + 1:
+            prev = set()
+        count += len(pairs - prev)
+        prev, prev_t = pairs, t
+    return count
 
 
 def _pattern_rows(ph: _PhaseLog, steps: IntArray) -> IntArray:
@@ -808,8 +901,8 @@ def _pattern_rows(ph: _PhaseLog, steps: IntArray) -> IntArray:
     return out
 
 
-def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool,
-                  series_err: Array, series_sep: Array, series_phase: IntArray) -> PhaseReport:
+def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool
+                  ) -> tuple[PhaseReport, StepSeries]:
     fr, w = data.frames, data.world
     lo = int(np.searchsorted(fr.steps, ph.start_step))
     hi = int(np.searchsorted(fr.steps, end_step, side="right"))
@@ -849,20 +942,9 @@ def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool,
         travel = {int(fr.ids[c]): 0.0 for c in np.nonzero(fr.present[rows[span]].any(0))[0]} \
             if len(xy) else {}
     # collisions, counted when a pair starts overlapping (as the world counts them)
-    collisions = 0
-    if len(xy) > 1:
-        sw = swept_pair_distance(xy[:-1], xy[1:])
-        hit = np.triu(sw < w.min_separation_m - 1e-6, 1)
-        prev: set[tuple[int, int]] = set()
-        prev_t = -2
-        for t in np.nonzero(hit.any(axis=(1, 2)))[0].tolist():
-            a, b = np.nonzero(hit[t])
-            pairs = {(int(fr.ids[i]), int(fr.ids[j])) for i, j in zip(a, b, strict=True)}
-            if t != prev_t + 1:
-                prev = set()
-            collisions += len(pairs - prev)
-            prev, prev_t = pairs, t
-    seps = _min_sep_rows(xy[1:]) if len(xy) > 1 else np.zeros(0)
+    all_seps = _min_sep_rows(fr.xy[rows])
+    collisions = _collisions(xy, fr.ids, all_seps[: last + 1], w.min_separation_m)
+    seps = all_seps[1 : last + 1]
     min_sep = float(seps.min()) if len(seps) and np.isfinite(seps.min()) else None
     # lower bounds from the poses at the phase's first step
     lb_steps: int | None = None
@@ -911,11 +993,9 @@ def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool,
                     mism.append(name)
             elif mine != theirs:
                 mism.append(name)
-    # series for the error plot
-    series_err[rows] = err
-    all_seps = _min_sep_rows(fr.xy[rows])
-    series_sep[rows] = np.where(np.isfinite(all_seps), all_seps, np.nan)
-    series_phase[rows] = ph.index
+    series = StepSeries(ph.index, steps[: last + 1], steps[: last + 1].astype(np.float64) * w.dt_s,
+                        err[: last + 1],
+                        np.where(np.isfinite(all_seps), all_seps, np.nan)[: last + 1])
     accepted = [s for s in ph.swaps if s.get("accepted")]
     return PhaseReport(
         index=ph.index, pattern=ph.name, n_robots=n0, start_step=ph.start_step, end_step=end,
@@ -929,7 +1009,7 @@ def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool,
         swapped_to=sorted({str(s.get("brain", "")) for s in accepted}),
         joined=ph.joined, lost=ph.lost,
         world=dict(we) if we is not None else None, mismatches=mism,
-    )
+    ), series
 
 
 def analyse(data: LogData) -> RunReport:
@@ -941,8 +1021,8 @@ def analyse(data: LogData) -> RunReport:
     run_end = data.events_of("run_end")
     last_step = int(fr.steps[-1]) if len(fr.steps) else None
     S = len(fr.steps)
-    s_err, s_sep, s_phase = np.full(S, np.nan), np.full(S, np.nan), np.full(S, -1, np.int64)
     reports = []
+    series = []
     for k, ph in enumerate(phases):
         if ph.end_step is not None:
             end, complete = ph.end_step, True
@@ -951,8 +1031,9 @@ def analyse(data: LogData) -> RunReport:
         else:
             end = int(run_end[0].get("steps", last_step or 0)) if run_end else (last_step or 0)
             complete = bool(run_end)
-        reports.append(_phase_report(data, ph, max(end, ph.start_step), complete,
-                                     s_err, s_sep, s_phase))
+        rep, ser = _phase_report(data, ph, max(end, ph.start_step), complete)
+        reports.append(rep)
+        series.append(ser)
     start = data.events_of("run_start")
     mode = str(start[0].get("mode", "?")) if start else "?"
     if run_end:
@@ -968,9 +1049,7 @@ def analyse(data: LogData) -> RunReport:
         wall_s=(data.last_log_ns - data.first_log_ns) / 1e9, robots=[int(i) for i in fr.ids],
         mode=mode, outcome=outcome, malformed=data.malformed + world_malformed,
         topics=data.topics, phases=reports,
-        series=StepSeries(fr.steps, fr.steps.astype(np.float64) * data.world.dt_s, s_phase, s_err,
-                          s_sep),
-        world=data.world,
+        series=series, world=data.world, phase_patterns=[ph.patterns for ph in phases],
     )
 
 
