@@ -238,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
     except InputError as e:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
-    record: Path = args.record or Path("runs") / f"{swarm}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    record: Path = args.record or Path("runs") / "demo.mcap"
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
     port = args.zenoh_port or free_port()

@@ -255,6 +255,43 @@ class FakeRobot:
         self.session.close()
 
 
+def write_test_brain(directory: Path, name: str, obs: str = "general", pattern: str | None = None,
+                     n_robots: int | None = None, seed: int = 0) -> Path:
+    """A small random linear brain ``<name>.onnx`` + ``<name>.json``, as an export writes them.
+
+    It passes the runtime's validation (shapes, finite outputs) but forms nothing: for
+    tests of brain choice and swaps, not of formation.
+    """
+    import hashlib
+
+    from onnx import TensorProto, helper, numpy_helper
+
+    from runtime.brain import METADATA_KEY, BrainManifest
+    from runtime.observation import ObservationSpec
+
+    spec = ObservationSpec(obs, n_robots=n_robots or 0) if obs == "paper" else ObservationSpec(obs)
+    rng = np.random.default_rng(seed)
+    w = rng.normal(0.0, 0.1, (spec.dim, 2)).astype(np.float32)
+    graph = helper.make_graph(
+        [helper.make_node("Gemm", ["obs", "W", "b"], ["action"])], "policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", spec.dim])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])],
+        [numpy_helper.from_array(w, "W"), numpy_helper.from_array(np.zeros(2, np.float32), "b")],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    manifest = BrainManifest(observation=spec, file=f"{name}.onnx", pattern=pattern,
+                             n_robots=n_robots, training={"algorithm": "test"})
+    entry = model.metadata_props.add()
+    entry.key, entry.value = METADATA_KEY, manifest.to_json(with_id=False)
+    data = model.SerializeToString()
+    path = directory / f"{name}.onnx"
+    path.write_bytes(data)
+    manifest.brain_id = hashlib.sha256(data).hexdigest()
+    path.with_suffix(".json").write_text(manifest.to_json())
+    return path
+
+
 class Kit:
     """The helpers above, for tests (conftest modules are not importable by name)."""
 
@@ -264,6 +301,7 @@ class Kit:
     children_of = staticmethod(children_of)
     Watcher = Watcher
     FakeRobot = FakeRobot
+    write_test_brain = staticmethod(write_test_brain)
 
 
 @pytest.fixture

@@ -189,3 +189,48 @@ def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -
     assert run.scan.complete  # the log was finished
     assert run.events_of("run_end")[0]["outcome"] == "interrupted"
     assert "interrupted" in procs.log("launch")
+
+
+def test_brains_are_chosen_by_manifest(tmp_path: Path, kit: Any) -> None:
+    from sim_bridge.sim import choose_brains
+
+    for name, obs, pattern, n in [("circle-10-paper", "paper", "circle", 10),
+                                  ("line-10-paper", "paper", "line", 10),
+                                  ("line-10-general", "general", "line", None),
+                                  ("any-general", "general", None, None),
+                                  ("heart-5-paper", "paper", "heart", 5)]:
+        kit.write_test_brain(tmp_path, name, obs, pattern, n)
+    pats = ["circle", "line", "heart", "cross"]
+    paper, missing = choose_brains(tmp_path, pats, 10, prefer="paper")
+    assert missing == []
+    assert {p: Path(c.ref).stem for p, c in paper.items()} == {
+        "circle": "circle-10-paper", "line": "line-10-paper",
+        "heart": "any-general", "cross": "any-general"}  # heart's paper brain is for 5
+    assert paper["circle"].kind == "paper" and len(paper["circle"].brain_id) == 64
+    general, _ = choose_brains(tmp_path, pats, 10, prefer="general")
+    assert Path(general["line"].ref).stem == "line-10-general"  # made for the pattern
+    assert Path(general["circle"].ref).stem == "any-general"
+    (tmp_path / "any-general.json").unlink()
+    _, missing = choose_brains(tmp_path, pats, 10, prefer="paper")
+    assert missing == ["heart", "cross"]
+
+
+def test_world_swaps_the_patterns_brain_into_every_robot(procs: Any, tmp_path: Path,
+                                                          kit: Any) -> None:
+    swarm, port, log = swarm_name("swap"), kit.free_port(), tmp_path / "swap.mcap"
+    wander = kit.write_test_brain(tmp_path, "wander")  # forms nothing
+    world = procs.world(swarm, port, "--robots", "4", "--patterns", "circle,line", "--seed", "4",
+                        "--record", str(log), "--brains", "rule:assign", "--wait-robots-s", "60")
+    for i in range(4):
+        procs.start(f"robot{i}", "robot", "--swarm", swarm, "--id", str(i), "--zenoh-port",
+                    str(port), "--brain", str(wander), "--exit-after-silence-s", "2")
+    assert world.wait(timeout=90) == 0, procs.log("world")
+    run = read_run(log)
+    swaps = run.events_of("brain_swap")
+    assert sorted(e["robot"] for e in swaps) == [0, 1, 2, 3]  # once: line keeps the brain
+    assert all(e["accepted"] and e["brain"] == "rule:assign" for e in swaps)
+    assert all(e["step"] == 0 and len(e["old_brain_id"]) == 64 for e in swaps)
+    assert run.topics[f"patternrl/{swarm}/brain"] >= 1  # the swap itself is on the log
+    ends = run.events_of("phase_end")
+    assert [e["formed"] for e in ends] == [True, True]
+    assert all(e["brain_ids"] == ["rule:assign"] for e in ends)
