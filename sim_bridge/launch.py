@@ -11,7 +11,7 @@ What it does:
    to it, each with the first pattern's brain; at every pattern change the world
    swaps in the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim.World`), recording the
-   MCAP log (``--record``, default ``runs/<swarm>-<time>.mcap``) and showing a
+   MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
    terminal; the robots' own log lines go to ``<log stem>.robots.log``;
 4. stops every robot by its PID (SIGTERM, then SIGKILL after a grace period),
@@ -70,7 +70,8 @@ ROBOT_SILENCE_EXIT_S = 20.0
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--swarm", default=None, help="swarm name (default launch-<pid>)")
-    add_world_arguments(p)
+    add_world_arguments(p, "the MCAP log (default runs/demo.mcap); the figure and the robots' "
+                           "log go beside it")
     p.add_argument("--brains", default="auto",
                    help="auto (exports/ if it has a brain for every pattern, else rule:assign), "
                         "a directory of brains, or rule:assign")
@@ -183,7 +184,7 @@ class ProgressLine:
             return
         self._last = now
         line = (f"[{p.phase + 1}/{p.n_phases}] {p.pattern:<10} step {p.phase_step:>4} "
-                f"(total {p.step:>5})  error {p.formation_error_m * 1000:8.1f} mm  "
+                f"(total {p.step:>5})  error {p.formation_error_m:7.3f} m  "
                 f"robots alive {p.n_live:>3}  deadline misses {p.deadline_misses}")
         self.stream.write("\r\x1b[2K" + line)
         self.stream.flush()

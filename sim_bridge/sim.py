@@ -768,13 +768,13 @@ class World:
 # --------------------------------------------------------------------------- CLI
 
 
-def add_world_arguments(p: argparse.ArgumentParser) -> None:
+def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write the MCAP log here"
+                        ) -> None:
     """Options the world shares with ``patternrl launch``."""
     p.add_argument("--robots", type=int, default=10, help="team size N (default 10)")
     p.add_argument("--patterns", default=DEFAULT_PATTERNS,
                    help=f"comma-separated, built-ins or files (default {DEFAULT_PATTERNS})")
-    p.add_argument("--record", type=Path, default=None, metavar="RUN.mcap",
-                   help="write the MCAP log here")
+    p.add_argument("--record", type=Path, default=None, metavar="RUN.mcap", help=record_help)
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep: wait for every command (reproducible); realtime: fixed rate")
     p.add_argument("--seed", type=int, default=0, help="seed of the start positions (default 0)")
