@@ -312,10 +312,35 @@ class OnnxBrain:
         self.spec = spec
         self.manifest = manifest
         self._session = session
-        self._run = session.run
         self._outputs = [ACTION_NAME]
         self._one = np.zeros((1, spec.dim), dtype=np.float32)  # the robot's reused input
         self._feed = {INPUT_NAME: self._one}
+        self._run = self._fast_run(session)
+
+    def _fast_run(self, session: ort.InferenceSession) -> Any:
+        """``session.run`` without its Python wrapper when the binding allows (~4 us less).
+
+        The wrapper re-checks names and types on every call; our feed is fixed and
+        checked once at validation. Falls back on the public call if the private
+        binding is missing or answers differently.
+        """
+        public = session.run
+        raw = getattr(session, "_sess", None)
+        if raw is None or not hasattr(ort, "RunOptions"):
+            return public
+        options = ort.RunOptions()
+
+        def run(outputs: list[str], feed: dict[str, Any]) -> Any:
+            return raw.run(outputs, feed, options)
+
+        try:
+            a = run(self._outputs, self._feed)[0]
+            b = public(self._outputs, self._feed)[0]
+            if np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True):
+                return run
+        except Exception:
+            pass
+        return public
 
     def act(self, obs: NDArray[Any]) -> Array:
         if obs.shape[0] == 1:
