@@ -287,6 +287,7 @@ def run(args: argparse.Namespace) -> int:
     say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm}, log {record}")
     res: RunResult | None = None
     try:
+        world.open()  # listening before the robots come: their first status says their brain
         robots.start(args.robots, swarm, port, first, args, robots_log)
         watcher = threading.Thread(target=watch, name="robot-watch", daemon=True)
         watcher.start()

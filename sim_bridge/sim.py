@@ -315,7 +315,10 @@ class World:
 
     # ------------------------------------------------------------------ zenoh
 
-    def _open(self) -> None:
+    def open(self) -> None:
+        """Declare the world on the session (done by :meth:`run` if not before)."""
+        if self._decls:
+            return
         s, sw = self.session, self.cfg.swarm
         self._decls.append(s.liveliness().declare_token(keys.alive_key(sw, keys.WORLD_ID)))
         self._pattern_pub = s.declare_publisher(keys.pattern_key(sw), express=True)
@@ -684,6 +687,13 @@ class World:
             if self.on_progress is not None:
                 self.on_progress(Progress(index, len(cfg.patterns), pattern_label(name),
                                           self.step, phase_step, err, len(ids), misses))
+        seen = sorted(b for b in brain_ids if b)
+        if choice is None:  # say what the robots ran
+            brain = ", ".join(b if b.startswith("rule:") else b[:8] for b in seen) or "unknown"
+        elif any(b != choice.brain_id[:64] for b in seen):
+            brain = f"{choice.label} (not in every robot)"
+        else:
+            brain = choice.label
         result = PhaseResult(
             index=index, pattern=pattern_label(name), n_robots=len(self.physics.ids),
             formed=bool(formed), steps=phase_step, step_limit=cfg.max_steps,
@@ -691,15 +701,14 @@ class World:
             lower_bound_travel_m=round(lb_travel, 6), collisions=collisions, contacts=contacts,
             min_separation_m=round(min_sep, 6) if math.isfinite(min_sep) else -1.0,
             deadline_misses=misses, late_commands=self._late - late0,
-            final_error_m=round(err, 6), brain=choice.label if choice else "robots' own",
-            brain_ids=sorted(b for b in brain_ids if b), joins=joins, leaves=leaves,
+            final_error_m=round(err, 6), brain=brain, brain_ids=seen, joins=joins, leaves=leaves,
             start_step=start_step, end_step=self.step,
             wall_s=round(time.monotonic() - t_start, 3),
         )
         self._event("phase_end", **asdict(result))
         verdict = "formed" if formed else "NOT formed"
         self._say(f"{pattern_label(name)}: {verdict} in {phase_step} steps "
-                 f"(lower bound {lb_steps}), error {err * 1000:.1f} mm")
+                 f"(lower bound {lb_steps}), error {err:.3f} m")
         return result
 
     def _record_step(self, phase: int, name: str, phase_step: int, ids: list[int], pos: Array,
@@ -731,7 +740,7 @@ class World:
         t0 = time.monotonic()
         phases: list[PhaseResult] = []
         outcome = "done"
-        self._open()
+        self.open()
         try:
             self._event("run_start", swarm=cfg.swarm, robots=cfg.robots, patterns=cfg.patterns,
                         mode=cfg.mode, seed=cfg.seed, step_deadline_ms=cfg.step_deadline_ms,
