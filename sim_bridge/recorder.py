@@ -48,6 +48,7 @@ chunk. A finished log also has the summary section and reads with any reader.
 from __future__ import annotations
 
 import json
+import struct
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -405,7 +406,7 @@ def iter_log(path: str | Path, scan: LogScan | None = None) -> Iterator[LogMessa
                 schema, channel, msg = next(it)
             except StopIteration:
                 break
-            except (McapError, EOFError, ValueError, OSError) as e:
+            except (McapError, EOFError, ValueError, OSError, struct.error) as e:
                 scan.complete = False
                 scan.error = f"{type(e).__name__}: {e}"[:200]
                 break
