@@ -187,6 +187,7 @@ class Controller:
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
         self._cc_list: list[list[float]] = []
+        self._cc3: Array = np.zeros((1, 0, 2))
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -218,6 +219,7 @@ class Controller:
             raise ValueError(f"pattern must have shape (n, 2), got {c.shape}")
         self._cc = c - c.mean(axis=0, keepdims=True)
         self._cc_list = self._cc.tolist()
+        self._cc3 = self._cc[None, :, :]
         self._pattern_obj = pattern
         self._prev_slots = None
         self._prev_list = None
@@ -251,7 +253,7 @@ class Controller:
         """
         n = p.shape[0]
         cen = np.add.reduce(p, 0) / n  # == p.mean(0), without mean's Python overhead
-        d = (p - cen)[:, None, :] - self._cc[None, :, :]
+        d = np.subtract((p - cen)[:, None, :], self._cc3)
         d *= d
         cost = d[..., 0] + d[..., 1]  # == formation's einsum: two squares, one addition
         _, cols = linear_sum_assignment(cost)
@@ -377,14 +379,13 @@ class Controller:
         out = [svx, svy, svx / d, svy / d, vix, viy]
         m = min(k, n - 1)
         if m > 0:
-            near = sorted(
-                ((q[0] - px) * (q[0] - px) + (q[1] - py) * (q[1] - py), j)
-                for j, q in enumerate(L)
-                if j != i
-            )
-            for _, j in near[:m]:
-                q, v = L[j], V[j]
-                out += (q[0] - px, q[1] - py, v[0] - vix, v[1] - viy, 1.0)
+            rel = [(q[0] - px, q[1] - py) for q in L]
+            d2 = [x * x + y * y for x, y in rel]
+            d2[i] = math.inf
+            # nearest first, ties by index: a stable sort of the ids by distance
+            for j in sorted(range(n), key=d2.__getitem__)[:m]:
+                v = V[j]
+                out += (*rel[j], v[0] - vix, v[1] - viy, 1.0)
         if m < k:
             out += [0.0] * (GENERAL_PER_NEIGHBOUR * (k - m))
         return np.array([out])
