@@ -15,8 +15,16 @@ centred optimal assignment, min separation, swept collision check).
 Part 2, the whole loop with N = 10 and N = 20 robot processes (``patternrl
 robot``, ``rule:assign``, ORCA on) on loopback, lockstep: the world runs in this
 process and plays patterns until ``--steps`` steps have passed. Reported: steps
-per second (wall, phases only) and pose-to-command latency (from the moment the
-world starts publishing a step's poses to each command's arrival), p50 and p99.
+per second (wall time inside steps: pattern changes, with their lower-bound
+computation and brain swaps, left out) and pose-to-command latency (from the moment the
+world starts publishing a step's poses to each command's arrival), p50 and p99;
+beside them, what the robots report as their decision time (observation,
+brain, safety filter) and the CPU time all robot processes together spent per
+step (receiving every pose, deciding, answering), and the world's own CPU time
+per step (its thread: publishing, collecting, physics, measures; no log is
+written here; the whole process, Zenoh's threads and pattern changes included,
+in the JSON): on a machine with few cores
+that CPU time, divided by the cores, is a floor under the latency.
 
 Budgets (DESIGN.md section 5): world step <= 50 us at N = 100; pose-to-command
 p99 <= 5 ms at N = 20.
@@ -156,6 +164,16 @@ def bench_physics(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     }
 
 
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc), 0 if unreadable."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     """A world in this process, n robot processes, lockstep, until ``steps`` steps ran."""
     from runtime.zenoh_session import open_session
@@ -171,7 +189,12 @@ def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
     world = World(cfg, session, None, log=lambda msg, detail: None)
 
+    cpu0: list[float] = []  # the robots' CPU time at step 1: start-up left out
+
     def on_progress(p: Any) -> None:
+        if p.step == 1:
+            cpu0.append(sum(_cpu_seconds(q.pid) for q in robots.procs.values()))
+            cpu0.append(time.process_time())
         if p.step >= steps:
             world.stop_event.set()
 
@@ -179,23 +202,30 @@ def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     robots = Robots()
     args = argparse.Namespace(mode="lockstep", safety="orca", rate_hz=10.0)
     log = Path(os.environ.get("TMPDIR", "/tmp")) / f"{swarm}.robots.log"
+    cpu_s = world_cpu_s = 0.0
     try:
         robots.start(n, swarm, port, "rule:assign", args, log)
         res = world.run()
+        world_cpu_s = time.process_time() - cpu0[1]
+        cpu_s = sum(_cpu_seconds(p.pid) for p in robots.procs.values())
     finally:
         robots.stop()
         session.close()  # type: ignore[no-untyped-call]
         log.unlink(missing_ok=True)
-    phase_wall = sum(p.wall_s for p in res.phases)
     lat = np.asarray(res.latencies_ms[n:])  # the very first step waits for start-up
     misses = sum(p.deadline_misses for p in res.phases)
+    dec = np.asarray(world.decision_us[n:])
     return {
         "n": n, "steps": res.steps, "phases": len(res.phases),
-        "steps_per_s": round(res.steps / phase_wall, 1) if phase_wall else 0.0,
+        "steps_per_s": round(res.steps / world.stepping_wall_s, 1),
         "latency_ms_p50": round(float(np.percentile(lat, 50)), 3),
         "latency_ms_p99": round(float(np.percentile(lat, 99)), 3),
         "latency_ms_max": round(float(lat.max()), 3),
         "deadline_misses": misses,
+        "robot_decision_us_p50": round(float(np.percentile(dec, 50)), 1),
+        "robot_cpu_ms_per_step": round((cpu_s - cpu0[0]) * 1000.0 / max(res.steps - 1, 1), 2),
+        "world_cpu_ms_per_step": round(world.stepping_cpu_s * 1000.0 / max(res.steps, 1), 3),
+        "world_process_cpu_ms_per_step": round(world_cpu_s * 1000.0 / max(res.steps - 1, 1), 2),
         "formed": sum(p.formed for p in res.phases),
     }
 
@@ -243,11 +273,13 @@ def main() -> int:
               f"{p['contact_steps']:>13} {p['measures_us_median']:>11.1f}")
     print(f"\nlockstep with robot processes on loopback ({steps} steps)")
     print(f"{'robots':>6} {'steps/s':>8} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} "
-          f"{'misses':>6}")
+          f"{'misses':>6} {'decision us p50':>15} {'robots cpu ms/step':>18} "
+          f"{'world cpu ms/step':>17}")
     for p in loops:
         print(f"{p['n']:>6} {p['steps_per_s']:>8.1f} {p['latency_ms_p50']:>7.3f} "
               f"{p['latency_ms_p99']:>7.3f} {p['latency_ms_max']:>7.2f} "
-              f"{p['deadline_misses']:>6}")
+              f"{p['deadline_misses']:>6} {p['robot_decision_us_p50']:>15.1f} "
+              f"{p['robot_cpu_ms_per_step']:>18.2f} {p['world_cpu_ms_per_step']:>17.2f}")
     b = out["budgets"]
     print(f"\nbudgets: world step at N=100 {b['world_step_us_at_100']['measured']} us "
           f"(<= 50); pose-to-command p99 at N=20 "

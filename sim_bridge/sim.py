@@ -278,6 +278,11 @@ class World:
         self.step = 0
         self.version = 0
         self.latencies_ms: list[float] = []
+        self.decision_us: list[float] = []  # as the robots report them, for benchmarks
+        # Time spent in steps (poses out to physics and record done), phase changes left
+        # out: wall, and CPU of the world's thread.
+        self.stepping_wall_s = 0.0
+        self.stepping_cpu_s = 0.0
         self.malformed = 0
         # --- shared with Zenoh callbacks, under self._cond
         self._cond = threading.Condition(threading.Lock())
@@ -413,6 +418,7 @@ class World:
                 if rid not in self._cmds:
                     self._cmds[rid] = cmd
                     self._cmd_t[rid] = now
+                    self.decision_us.append(cmd.decision_us)
                     if self._expect - self._gone <= self._cmds.keys():
                         self._cond.notify_all()
             elif cmd.step < self._collect_step and self.cfg.mode == "lockstep":
@@ -653,6 +659,7 @@ class World:
             ids = list(self.physics.ids)
             pos = self.physics.positions()
             t_step = time.monotonic()
+            cpu_step = time.thread_time()
             v, missed = self._exchange(pos, first=self.step == 0 or bool(j))
             if self.stop_event.is_set():
                 break
@@ -684,6 +691,8 @@ class World:
                 self._event("deadline_miss", robots=missed, for_step=self.step - 1)
             self._record_step(index, name, phase_step, ids, new_pos, C, err, far, sep,
                               len(pairs), len(res.new_contacts), len(missed), t_step)
+            self.stepping_wall_s += time.monotonic() - t_step
+            self.stepping_cpu_s += time.thread_time() - cpu_step
             if self.on_progress is not None:
                 self.on_progress(Progress(index, len(cfg.patterns), pattern_label(name),
                                           self.step, phase_step, err, len(ids), misses))
