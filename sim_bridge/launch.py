@@ -133,6 +133,10 @@ class Robots:
                    "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
             if args.mode == "realtime":
                 cmd += ["--rate-hz", str(args.rate_hz)]
+            else:  # a robot waits for every pose of a step about as long as the world waits
+                # for its command: on a busy machine it still decides on complete steps,
+                # so a lockstep run stays reproducible
+                cmd += ["--lockstep-deadline-s", f"{0.8 * args.step_deadline_ms / 1000.0:g}"]
             # Own process group: a Ctrl-C reaches the launcher only, which then stops
             # each robot by PID after finishing the log.
             self.procs[rid] = subprocess.Popen(
