@@ -200,7 +200,8 @@ def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
 
     world.on_progress = on_progress
     robots = Robots()
-    args = argparse.Namespace(mode="lockstep", safety="orca", rate_hz=10.0)
+    args = argparse.Namespace(mode="lockstep", safety="orca", rate_hz=10.0,
+                              step_deadline_ms=cfg.step_deadline_ms)
     log = Path(os.environ.get("TMPDIR", "/tmp")) / f"{swarm}.robots.log"
     cpu_s = world_cpu_s = 0.0
     try:
