@@ -1,9 +1,9 @@
 """The training world: E independent envs of N disc robots, batch-first numpy.
 
 Every public array is shaped ``(E, N, ...)`` (envs, robots, ...); nothing loops
-over robots, and the only loop over envs on the hot path is scipy's assignment
-solver, and only for the envs where the previous assignment is not proven to
-stand (see *Shared assignment* below). Units: metres, seconds, metres per second.
+over robots, and the only loop over envs on the hot path is the one inside
+``assign_slots_batch`` (scipy has no batched assignment solver). Units: metres,
+seconds, metres per second.
 
 Inside, the step keeps positions as ``(2, N, E)`` (component, robot, env) and
 pair arrays as ``(N, N, E)``: at these sizes numpy's cost is its inner loops,
@@ -32,23 +32,18 @@ Step (``BatchWorld.step``), in order
        interpenetrate, and a robot that drives into another one stops at
        contact instead of passing. Should a jam not clear within
        ``CONTACT_SWEEPS`` sweeps, the robots still overlapping hold their
-       previous (valid) positions (counted in ``BatchWorld.contact_fallbacks``).
+       previous (valid) positions (counted in ``BatchWorld.contact_fallbacks``);
+       so after every step all centres are at least 2R apart (to 1e-6 m).
        The projection needs ``v_max dt <= R`` (the default is exactly R):
        then no centre can cross another's within a step, so a push never
        swaps two robots; other worlds are refused. The plane has no walls:
        the arena only bounds the starts.
     4. **Shared assignment**, solved once per step and used for reward,
        termination and observation alike: ``assign_slots_batch(previous=...)``
-       (centred, error-optimal, with hysteresis). Before calling scipy the
-       world proves, for all envs at once, that the solver would keep the
-       previous assignment (no cycle of slot exchanges beats it by the
-       hysteresis margin: Bellman-Ford in numpy over the batch, see
-       :func:`previous_assignment_kept`); only envs where that proof fails go
-       to the solver. The result is identical to calling ``assign_slots_batch``
-       on every env (tested). Slot positions, slot distances and the formation
-       error follow from the same cost matrix (``slot_positions``,
-       ``slot_distances``, ``formation_error_batch`` of the shared assignment;
-       tested equal).
+       (centred, error-optimal, with hysteresis), every env every step. Slot
+       positions, slot distances and the formation error follow from it
+       (what ``slot_positions``, ``slot_distances`` and
+       ``formation_error_batch`` give for that assignment; tested equal).
     5. **Reward**, per robot, paper eq. 6 plus two documented extras::
 
            r_i = R_g + R_c * c_i + beta * r_p + w_prog * prog_i + B * formed
@@ -95,19 +90,20 @@ Reward constants (``RewardConfig()``; per robot, per step)
                              drown them, large enough that dawdling short of
                              "formed" costs: at gamma = 0.99 hovering forever is
                              worth -5, so finishing is always better.
-    collision_penalty -1.0   R_c per collision the robot is part of. Equals 20
-                             steps of fatigue and a full step of progress: a
-                             detour of a few steps is always cheaper than
+    collision_penalty -1.0   R_c per collision the robot is part of: 20 steps of
+                             fatigue, one full-speed step of the robot's own
+                             progress. A detour of a few steps is cheaper than a
                              contact, and pushing into a neighbour (no progress,
-                             -1 per step) is never worth it.
+                             -1 every step) never pays.
     beta             1.0     weight of r_p (team progress, change form, above).
                              Summed over an episode it is the initial error in
-                             steps (about 20-40 here): a dense team signal.
-    progress_weight  1.0     per-robot progress toward its own slot. The
-                             training-only credit signal that lets a shared
-                             policy learn in minutes (the calibration run behind
-                             DESIGN.md learned a 10-robot circle in 2 min with it,
-                             not in 12 without); 0 gives the paper's reward.
+                             steps (about 30-40 from uniform starts here): a
+                             dense team signal on the paper's own term.
+    progress_weight  1.0     per-robot progress toward its own slot: the
+                             training-only credit signal that, in the experiment
+                             quoted in issue 2, made the difference between a
+                             circle formed within 2 minutes of training and one
+                             not formed after 12. 0 gives the paper's reward.
     formed_bonus     1.0     once, to every robot, on the formed step: marks
                              success in the return; the fatigue already makes
                              ending early pay, so it stays modest.
@@ -127,13 +123,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.formation import (
-    HYSTERESIS_ABS_M2,
-    HYSTERESIS_REL,
-    assign_slots_batch,
-    lower_bounds,
-    slot_positions,
-)
+from runtime.formation import assign_slots_batch, lower_bounds, slot_positions
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern, random_pattern
 from runtime.world import DEFAULT_WORLD, WorldConfig
@@ -157,10 +147,6 @@ CONTACT_OVER_RELAX = 1.7
 their centroid needs a median of 19 plain Jacobi sweeps (99th percentile 31) but
 6 (99th percentile 9, never more than 12) over-relaxed; an isolated pair is
 resolved by the first, plain sweep to exactly 2R."""
-
-ASSIGNMENT_SWEEPS = 10
-"""Most relaxation sweeps of the assignment proof per step (each costs a few
-microseconds over the whole batch); envs not proven by then go to scipy."""
 
 _MAX_START_DRAWS = 10_000
 
@@ -241,90 +227,17 @@ def swept_contacts(X0: Array, U: Array, limit_m: float) -> BoolArray:
     :func:`runtime.formation.swept_pair_distance` (relative motion
     ``d(s) = d0 + s dd``, ``s`` in [0, 1]), in the robot-major layout.
     """
+    n = X0.shape[1]
     d0 = X0[:, None, :, :] - X0[:, :, None, :]  # d0[k, i, j] = x_j - x_i
     dd = U[:, None, :, :] - U[:, :, None, :]
     a = d0[0] * d0[0] + d0[1] * d0[1]
+    a[np.arange(n), np.arange(n)] = np.inf  # a robot never meets itself
     b = d0[0] * dd[0] + d0[1] * dd[1]
     c = dd[0] * dd[0] + dd[1] * dd[1]
-    moving = c > 0.0
-    s = np.where(moving, -b / np.where(moving, c, 1.0), 0.0)
+    s = np.divide(-b, c, out=np.zeros_like(b), where=c > 0.0)  # the time of closest approach
     np.clip(s, 0.0, 1.0, out=s)
-    closest2 = a + s * (2.0 * b + s * c)
-    hit = closest2 < limit_m * limit_m
-    n = X0.shape[1]
-    hit[np.arange(n), np.arange(n)] = False
-    out: BoolArray = hit
-    return out
-
-
-# ----------------------------------------------------------------- assignment
-
-
-def previous_assignment_kept(
-    P: Array, C: Array, previous: IntArray, sweeps: int | None = None
-) -> BoolArray:
-    """Per env, whether ``assign_slots_batch(P, C, previous)`` surely returns ``previous``, (E,).
-
-    False means "not proven": the caller solves those envs exactly, so the
-    outcome always equals the solver's.
-
-    The solver keeps ``previous`` unless the optimal assignment costs less than
-    ``old - m`` (``old`` the cost of ``previous``, ``m`` the hysteresis margin
-    ``HYSTERESIS_REL * old + HYSTERESIS_ABS_M2``; cost: summed squared distance
-    of centred positions to the centred pattern). With ``w_ij = cost[i, slot_j]
-    - cost[i, slot_i]`` (robot i takes robot j's slot) and any potentials
-    ``e``, ``r_i = min_j (w_ij + e_j)`` gives the feasible assignment dual
-    ``u_i = cost[i, slot_i] + r_i``, ``v_(slot_j) = -e_j``, whose value, a lower
-    bound on the optimal cost, is ``old - sum_i (e_i - r_i)``. So a gap
-    ``sum_i (e_i - r_i) <= m`` proves the solver keeps ``previous``. From
-    ``e = 0`` the gap is zero when every robot's own slot is its nearest (the
-    common case once a team is near its pattern); otherwise each sweep relaxes
-    ``e <- r`` (Bellman-Ford on the slot-exchange graph), which reaches a zero
-    gap within N sweeps when ``previous`` is optimal. ``sweeps`` (default N)
-    bounds the work; envs not proven by then are False.
-    """
-    Pc = _robot_major(P - P.mean(axis=1, keepdims=True))
-    Cc = C - C.mean(axis=1, keepdims=True)
-    Q = _robot_major(np.take_along_axis(Cc, previous[..., None], axis=1))
-    kept, _ = _kept_by_solver(Pc, Q, P.shape[1] if sweeps is None else sweeps)
-    return kept
-
-
-def _kept_by_solver(Pc: Array, Q: Array, sweeps: int) -> tuple[BoolArray, Array]:
-    """:func:`previous_assignment_kept` on centred positions ``Pc`` and the centred
-    pattern point of every robot's slot ``Q``, both (2, N, E). Also returns each
-    robot's squared distance to its slot, (N, E)."""
-    n = Pc.shape[1]
-    dx = Pc[0][None, :, :] - Q[0][:, None, :]  # [j, i]: robot i to robot j's slot
-    dy = Pc[1][None, :, :] - Q[1][:, None, :]
-    cost = dx * dx + dy * dy
-    own = cost[np.arange(n), np.arange(n)]  # (N, E): |Pc_i - Q_i|^2
-    old = own.sum(axis=0)
-    allowed = (HYSTERESIS_REL * (1.0 - 1e-6)) * old + (HYSTERESIS_ABS_M2 * (1.0 - 1e-6) - 1e-12)
-    e = cost.min(axis=0) - own  # the first sweep, from e = 0
-    kept = -e.sum(axis=0) <= allowed
-    if sweeps <= 1 or kept.all():
-        return kept, own
-    # further sweeps only over the envs not proven yet
-    active = np.flatnonzero(~kept)
-    cost_a, own_a, allowed_a, e = cost[:, :, active], own[:, active], allowed[active], e[:, active]
-    for _ in range(sweeps - 1):
-        r = (cost_a + e[:, None, :]).min(axis=0) - own_a
-        ok = (e - r).sum(axis=0) <= allowed_a
-        if ok.any():
-            kept[active[ok]] = True
-            if ok.all():
-                break
-            rest = ~ok
-            active, cost_a, own_a, allowed_a = (
-                active[rest],
-                cost_a[:, :, rest],
-                own_a[:, rest],
-                allowed_a[rest],
-            )
-            r = r[:, rest]
-        e = r
-    return kept, own
+    hit: BoolArray = a + s * (2.0 * b + s * c) < limit_m * limit_m
+    return hit
 
 
 # ----------------------------------------------------------------------- world
@@ -380,6 +293,9 @@ class BatchWorld:
         self._reach = world.max_step_m
         self._formed_tol2 = world.formed_tol_m**2
         self._diag = np.arange(N)
+        self._env_col = np.arange(E)[:, None]
+        self._no_obs: F32Array = np.zeros((E, N, 0), dtype=np.float32)
+        self._no_obs.flags.writeable = False
         self._rngs = self._spawn_rngs(seed)
         self._cache: dict[str, Array] = {}
         self.patterns: tuple[str, ...] = ()
@@ -397,14 +313,17 @@ class BatchWorld:
         self.lower_bound_steps: IntArray = np.zeros(E, dtype=np.int64)
         self.lower_bound_travel: Array = np.zeros(E)
         self.contact_fallbacks = 0  # robots held still because a jam did not clear
-        self.assignment_solves = 0  # envs handed to scipy by step() (the rest proven kept)
         # hot-path state, robot-major: (2, N, E) and (N, E)
         self._X: Array = np.zeros((2, N, E))  # positions now
-        self._Q: Array = np.zeros((2, N, E))  # centred pattern point of each robot's slot
         self._G: Array = np.zeros((2, N, E))  # each robot's slot in world coordinates
         self._dist: Array = np.zeros((N, E))  # |position - slot|
         self._travel: Array = np.zeros((N, E))
-        self._hits: IntArray = np.zeros((N, E), dtype=np.int64)
+        # shared "no contact this step" results, read-only so they can be handed out
+        self._no_hits: IntArray = np.zeros((N, E), dtype=np.int64)
+        self._no_collisions: IntArray = np.zeros(E, dtype=np.int64)
+        self._no_hits.flags.writeable = False
+        self._no_collisions.flags.writeable = False
+        self._hits: IntArray = self._no_hits
         self._obs: F32Array = np.zeros((E, N, self.obs_dim), dtype=np.float32)
         self.reset()
 
@@ -565,7 +484,6 @@ class BatchWorld:
         self.error = self.error.copy()
         self.error[ids] = np.sqrt((dist**2).mean(axis=1))
         self._X[:, :, ids] = P.transpose(2, 1, 0)
-        self._Q[:, :, ids] = np.take_along_axis(C, slots[..., None], axis=1).transpose(2, 1, 0)
         self._G[:, :, ids] = goals.transpose(2, 1, 0)
         self._dist[:, ids] = dist.T
         self._travel[:, ids] = 0.0
@@ -585,8 +503,7 @@ class BatchWorld:
     def _observe(self, ids: IntArray | None = None) -> F32Array:
         sel = slice(None) if ids is None else ids
         if not self.build_obs:
-            n = self.n_envs if ids is None else len(ids)
-            return np.zeros((n, self.n_robots, 0), dtype=np.float32)
+            return self._no_obs if ids is None else self._no_obs[: len(ids)]
         if self.obs_spec.name == "paper":
             obs = paper_observation(self.frames[sel])
         else:
@@ -606,59 +523,55 @@ class BatchWorld:
 
     # ------------------------------------------------------------------- step
 
-    def _velocities(self, actions: NDArray[np.floating]) -> tuple[Array, Array]:
-        """Actions as robot-major velocities (2, N, E) within v_max (non-finite -> 0),
-        and their squared speeds (N, E)."""
+    def _velocities(self, actions: NDArray[np.floating]) -> Array:
+        """Actions as robot-major velocities (2, N, E), scaled down to v_max where faster.
+
+        A robot whose action is not finite (or so large its square overflows) holds still.
+        """
         shape = (self.n_envs, self.n_robots, 2)
         a = np.asarray(actions)
         if a.shape != shape:
             raise ValueError(f"actions must be {shape}, got {a.shape}")
         V = _robot_major(a.astype(np.float64, copy=False))  # a copy: the caller's is untouched
-        speed2 = V[0] * V[0] + V[1] * V[1]  # NaN or inf if any component is
-        v2 = self.world.v_max_mps**2
-        fast = ~(speed2 <= v2)
-        if fast.any():
-            bad = fast & ~np.isfinite(speed2)
-            V[:, bad] = 0.0
-            speed2[bad] = 0.0
-            fast &= ~bad
-            V[:, fast] *= np.sqrt(v2 / speed2[fast])
-            speed2[fast] = v2
-        return V, speed2
+        speed2 = V[0] * V[0] + V[1] * V[1]
+        finite = np.isfinite(speed2)
+        if not finite.all():
+            V[:, ~finite] = 0.0
+            speed2[~finite] = 0.0
+        v = self.world.v_max_mps
+        V *= v / np.fmax(np.sqrt(speed2), v)  # min(1, v_max / |a|): direction kept
+        return V
 
     def _resolve(self, X0: Array, X1: Array, hit: BoolArray) -> tuple[Array, BoolArray]:
         """Push overlapping discs apart in the envs of ``hit`` (N, N, k); (2, N, k) arrays.
 
-        Returns the resolved positions and every pair that touched.
+        Returns the resolved positions and every pair that touched. Two centres
+        exactly on top of each other have no centre line to push along; they are
+        left to the hold-still fallback (it never happens with real-valued motion).
         """
-        limit = self._two_r - CONTACT_TOL_M
+        limit2 = (self._two_r - CONTACT_TOL_M) ** 2
         X = X1.copy()
         touched = hit.copy()
         d_idx = self._diag
-        relax = 1.0
+        half_push = 0.5
         for _ in range(CONTACT_SWEEPS):
             diff = X[:, :, None, :] - X[:, None, :, :]  # [k, i, j]: x_i - x_j
             d2 = diff[0] * diff[0] + diff[1] * diff[1]
             d2[d_idx, d_idx] = 1e18  # no robot pushes itself
-            over = d2 < limit * limit
+            over = d2 < limit2
             if not over.any():
                 return X, touched
             touched |= over
-            d = np.sqrt(d2)
-            flat = over & (d < 1e-12)
-            if flat.any():  # centres on top of each other: push along the line they came from
-                start = X0[:, :, None, :] - X0[:, None, :, :]
-                diff = np.where(flat, start, diff)
-                d = np.where(flat, np.sqrt(start[0] ** 2 + start[1] ** 2), d)
-            push = np.where(over, (0.5 * relax) * (self._two_r - d) / np.maximum(d, 1e-12), 0.0)
-            X += (diff * push).sum(axis=2)
-            relax = CONTACT_OVER_RELAX
+            # each robot of an overlapping pair moves (2R - d) / 2 along the centre line
+            push = over * (half_push * (self._two_r / np.sqrt(np.fmax(d2, 1e-24)) - 1.0))
+            X += np.einsum("kije,ije->kie", diff, push)
+            half_push = 0.5 * CONTACT_OVER_RELAX
         # jammed: robots still overlapping hold their previous (valid) positions
         for _ in range(self.n_robots + 1):
             diff = X[:, :, None, :] - X[:, None, :, :]
             d2 = diff[0] * diff[0] + diff[1] * diff[1]
             d2[d_idx, d_idx] = 1e18
-            over = d2 < limit * limit
+            over = d2 < limit2
             stuck = over.any(axis=1)
             if not stuck.any():
                 break
@@ -667,88 +580,58 @@ class BatchWorld:
             X[:, stuck] = X0[:, stuck]
         return X, touched
 
-    def _assign(self, X: Array) -> tuple[IntArray, Array]:
-        """The shared assignment, hysteresis included, solving only where it may have changed.
-
-        ``X`` (2, N, E) positions. Sets the slot points ``_Q`` and returns
-        (slots (E, N), squared distance of each robot to its slot (N, E)).
-        """
-        centroid = X.mean(axis=1, keepdims=True)
-        Pc = X - centroid
-        keep, dist2 = _kept_by_solver(Pc, self._Q, ASSIGNMENT_SWEEPS)
-        slots = self.slots
-        if not keep.all():
-            redo = np.flatnonzero(~keep)
-            self.assignment_solves += len(redo)
-            new = assign_slots_batch(
-                _env_major(X[:, :, redo]), self.pattern[redo], previous=slots[redo]
-            )
-            changed = (new != slots[redo]).any(axis=1)
-            if changed.any():
-                ids = redo[changed]
-                slots = slots.copy()
-                slots[ids] = new[changed]
-                Q = self.pattern[ids[:, None], new[changed]]  # (k, N, 2) slot points
-                self._Q = self._Q.copy()
-                self._Q[:, :, ids] = Q.transpose(2, 1, 0)
-                gap = Pc[:, :, ids] - self._Q[:, :, ids]
-                dist2[:, ids] = gap[0] * gap[0] + gap[1] * gap[1]
-        self._G = self._Q + centroid  # = slot_positions(P, pattern, slots): pattern is centred
-        return slots, dist2
-
     def step(self, actions: NDArray[np.floating]) -> StepResult:
         """Advance every env by one step; see the module docstring for the order of events."""
         cfg, w = self.reward_config, self.world
-        V, speed2 = self._velocities(actions)
+        V = self._velocities(actions)
         X0 = self._X
         U = V * w.dt_s
         X1 = X0 + U
-        step_len = np.sqrt(speed2) * w.dt_s
-        self._travel += step_len
 
         # contacts: collisions from the swept paths, overlaps pushed apart
         hit = swept_contacts(X0, U, self._two_r - CONTACT_TOL_M)
         touched_envs = np.flatnonzero(hit.any(axis=(0, 1)))
+        hits, collisions = self._no_hits, self._no_collisions
         if len(touched_envs):
             k = touched_envs
             Xk, touched = self._resolve(X0[:, :, k], X1[:, :, k], hit[:, :, k])
             X1[:, :, k] = Xk
-            hits = np.zeros_like(self._hits)
+            hits = np.zeros_like(self._no_hits)
             hits[:, k] = touched.sum(axis=1)
-            moved = Xk - X0[:, :, k]  # pushed robots travelled their actual displacement
-            self._travel[:, k] += np.sqrt(moved[0] ** 2 + moved[1] ** 2) - step_len[:, k]
-            collisions: IntArray = hits.sum(axis=0) // 2
+            collisions = hits.sum(axis=0) // 2
             self.episode_collisions += collisions
-        else:
-            hits = np.zeros_like(self._hits)
-            collisions = np.zeros(self.n_envs, dtype=np.int64)
+        moved = X1 - X0
+        self._travel += np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
 
-        # the shared assignment, once: slots, slot distances, error, formed
-        G_shown = self._G  # the slots the robots saw when they acted
-        slots, dist2 = self._assign(X1)
-        error = np.sqrt(dist2.mean(axis=0))  # = formation_error_batch(P, C, slots)
-        formed = dist2.max(axis=0) <= self._formed_tol2  # slot_distances(...) <= formed_tol
+        # the shared assignment, solved once; it gives slots, slot distances, error, formed
+        P1 = _env_major(X1)
+        slots = assign_slots_batch(P1, self.pattern, previous=self.slots)
+        Q = _robot_major(self.pattern[self._env_col, slots])  # each robot's (centred) slot point
+        G = Q + X1.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)  # = slot_positions(...)
+        gap = X1 - G
+        dist2 = gap[0] * gap[0] + gap[1] * gap[1]  # = slot_distances(...) ** 2, (N, E)
+        error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
+        formed = dist2.max(axis=0) <= self._formed_tol2
         dist = np.sqrt(dist2)
 
         # reward, (N, E): R_g + R_c * hits + beta * r_p + w * progress (+ bonus)
         reward = cfg.collision_penalty * hits + cfg.step_penalty
         reward += (cfg.beta / self._reach) * (self.error - error)
         if cfg.progress_weight:
-            after = X1 - G_shown
+            after = X1 - self._G  # to the slot shown in the last observation
             after_len = np.sqrt(after[0] * after[0] + after[1] * after[1])
             reward += (cfg.progress_weight / self._reach) * (self._dist - after_len)
         if cfg.formed_bonus and formed.any():
             reward[:, formed] += cfg.formed_bonus
-        reward_en = np.ascontiguousarray(reward.T, dtype=np.float32)
 
         frames = np.empty_like(self.frames)  # new array: views handed out stay as they were
-        frames[:, 0] = X1.transpose(2, 1, 0)
+        frames[:, 0] = P1
         frames[:, 1:] = self.frames[:, :2]
         self.frames = frames
-        self._X, self._dist, self._hits = X1, dist, hits
+        self._X, self._G, self._dist, self._hits = X1, G, dist, hits
         self.slots, self.error = slots, error
         self.steps += 1
-        self.episode_return += reward.mean(axis=0)
+        self.episode_return += reward.sum(axis=0) * (1.0 / self.n_robots)
         truncated = self.steps >= self.step_limit
         truncated &= ~formed
         done = formed | truncated
@@ -774,15 +657,14 @@ class BatchWorld:
                 if self.compute_bounds
                 else None,
             )
-            self.pattern = self.pattern.copy()
-            self._X, self._G = self._X.copy(), self._G.copy()
+            self.pattern = self.pattern.copy()  # arrays handed out stay as they were
             self._reset_envs(ended)
             if self.build_obs:
                 obs[ended] = self._observe(ended)
         self._obs = obs
         return StepResult(
             obs=obs,
-            reward=reward_en,
+            reward=np.ascontiguousarray(reward.T, dtype=np.float32),
             done=done,
             formed=formed,
             truncated=truncated,
@@ -799,6 +681,5 @@ __all__ = [
     "EpisodeStats",
     "RewardConfig",
     "StepResult",
-    "previous_assignment_kept",
     "swept_contacts",
 ]

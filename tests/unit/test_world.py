@@ -25,7 +25,6 @@ from trainer.world import (
     PAPER_REWARD,
     BatchWorld,
     RewardConfig,
-    previous_assignment_kept,
     swept_contacts,
 )
 
@@ -214,26 +213,6 @@ def test_swept_contacts_is_the_runtime_collision_check(seed: int, n: int, spread
 
 
 # ---------------------------------------------------------------- assignment
-
-
-@settings(max_examples=60)
-@given(seed=st.integers(0, 10_000), scale=st.sampled_from([0.001, 0.02, 0.3, 2.0]))
-def test_assignment_shortcut_equals_solver(seed: int, scale: float) -> None:
-    rng = np.random.default_rng(seed)
-    E, n = 16, 8
-    C = np.stack([make_pattern(["circle", "heart", "cross"][e % 3], n) for e in range(E)])
-    P = rng.uniform(0, 5, (E, n, 2))
-    prev = assign_slots_batch(P, C)
-    for _ in range(5):
-        P = P + rng.normal(0, scale, P.shape)
-        kept = previous_assignment_kept(P, C, prev)
-        quick = previous_assignment_kept(P, C, prev, sweeps=1)
-        full = assign_slots_batch(P, C, previous=prev)
-        assert np.all(full[kept] == prev[kept])  # sound: "kept" is what the solver does
-        assert np.all(kept[quick])
-        optimal = (assign_slots_batch(P, C) == prev).all(axis=1)
-        assert np.all(kept[optimal])  # complete: an optimal assignment is always proven
-        prev = full
 
 
 def test_world_assignment_is_the_solvers() -> None:
