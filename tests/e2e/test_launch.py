@@ -234,3 +234,33 @@ def test_world_swaps_the_patterns_brain_into_every_robot(procs: Any, tmp_path: P
     ends = run.events_of("phase_end")
     assert [e["formed"] for e in ends] == [True, True]
     assert all(e["brain_ids"] == ["rule:assign"] for e in ends)
+
+
+def test_robot_joins_mid_run_is_placed_and_the_pattern_grows(procs: Any, tmp_path: Path,
+                                                              kit: Any) -> None:
+    swarm, port, log = swarm_name("join"), kit.free_port(), tmp_path / "join.mcap"
+    rt = ("--mode", "realtime", "--rate-hz", "20")
+    world = procs.world(swarm, port, "--robots", "3", "--patterns", "circle,line", "--seed", "6",
+                        "--record", str(log), "--wait-robots-s", "60", *rt)
+    watcher = kit.Watcher(swarm, port)
+    try:
+        kit.wait_for(lambda: "world" in watcher.alive, 30, "the watcher to see the world")
+        for i in range(3):
+            procs.robot(swarm, port, i, *rt, "--exit-after-silence-s", "2")
+        kit.wait_for(lambda: watcher.step() >= 5, 60, "the world to run 5 steps")
+        procs.robot(swarm, port, 3, *rt, "--exit-after-silence-s", "2")
+        assert world.wait(timeout=90) == 0, procs.log("world")
+    finally:
+        watcher.close()
+    run = read_run(log)
+    joins = run.events_of("join")
+    assert [e["robot"] for e in joins] == [0, 1, 2, 3]
+    late = joins[-1]
+    assert late["step"] > 0 and late["n_live"] == 4
+    resized = [e for e in run.events_of("pattern") if e["reason"] == "resize"]
+    assert resized and resized[0]["n"] == 4
+    ends = run.events_of("phase_end")
+    assert [e["formed"] for e in ends] == [True, True]
+    assert ends[-1]["n_robots"] == 4 and sum(e["joins"] for e in ends) == 1
+    for n, err, far in phase_end_errors(run)[-1:]:
+        assert n == 4 and err <= TOL and far <= TOL
