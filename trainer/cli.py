@@ -222,8 +222,8 @@ def run(args: argparse.Namespace) -> int:
             e = manifest.evaluation
             ev_text = (
                 f"; evaluation ({e['episodes']} episodes, ORCA): success "
-                f"{100 * e['success_rate']:.1f} %, {e['collisions']} collisions, "
-                f"steps {e['steps_ratio'] or float('nan'):.3f}x"
+                f"{100 * e['success_rate']:.1f} %, {e['collisions']} collisions"
+                + (f", steps {e['steps_ratio']:.3f}x the lower bound" if e["steps_ratio"] else "")
             )
         print(
             f"{args.out} ({summary['size_bytes'] // 1024} KB): {cfg.algo}, {spec.name} "

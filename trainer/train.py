@@ -74,6 +74,7 @@ CURVE_FIELDS = (
     "eval_success",
     "eval_steps",
     "kl",
+    "kl_encoder",
     "kl_coef",
     "ae_loss",
     "policy_loss",
@@ -84,6 +85,7 @@ CURVE_FIELDS = (
 )
 WALL_FIELDS = ("wall_s",)
 RESUME_SEED_STRIDE = 7919
+VALUE_WARMUP_ITERATIONS = 3
 
 
 class InitError(ValueError):
@@ -395,6 +397,9 @@ def train(
         agent = load_init(plan.init, cfg, world.v_max_mps, spec.dim)
         opt = make_optimisers(agent, cfg)
         warm_start = Path(plan.init).suffix == ".onnx"
+    # a brain carries no value network: fit a fresh one for a few iterations before the policy
+    # moves on its advantages (and, for Pattern-RL, a fresh decoder to the brain's encoder)
+    value_warmup = VALUE_WARMUP_ITERATIONS if warm_start else 0
 
     E, N, T = cfg.n_envs, cfg.n_robots, cfg.rollout_steps
     v_max = world.v_max_mps
@@ -412,6 +417,11 @@ def train(
                 E, N, pattern, spec, world=world, reward=reward_for(cfg), seed=world_seed
             )
             obs = bw.observe()
+            if cfg.desync:
+                # every world starts at once; cut each first episode at a random step (a
+                # time-limit cut, bootstrapped) so that later memories mix all episode phases
+                rng = np.random.default_rng([cfg.seed, it, stage])
+                bw.steps[:] = rng.integers(0, bw.step_limit, size=E)
             stage_eps0 = episodes if stage > stage0 or not plan.resume else _stage_start(curve)
             stage_t0 = time.perf_counter()
             ep_returns: list[float] = []
@@ -470,7 +480,11 @@ def train(
                 for o_, lr in zip(opt, base_lrs, strict=True):
                     for g in o_.param_groups if o_ is not None else []:
                         g["lr"] = lr * lr_scale
-                stats: UpdateStats = update(agent, opt, batch, cfg, kl_coef, gen)
+                step_cfg = cfg
+                if value_warmup > 0:
+                    step_cfg = cfg.with_(ae_steps=0, policy_steps=0)
+                    value_warmup -= 1
+                stats: UpdateStats = update(agent, opt, batch, step_cfg, kl_coef, gen)
                 kl_coef = stats.kl_coef
                 it += 1
 
@@ -527,6 +541,7 @@ def train(
                     "eval_success": ev.success_rate if ev else math.nan,
                     "eval_steps": ev.mean_steps if ev else math.nan,
                     "kl": stats.kl,
+                    "kl_encoder": stats.kl_encoder,
                     "kl_coef": kl_coef,
                     "ae_loss": stats.ae_loss,
                     "policy_loss": stats.policy_loss,

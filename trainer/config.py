@@ -1,0 +1,152 @@
+"""Hyper-parameters of Pattern-RL training, in one dataclass.
+
+Symbols follow the paper's Algorithm 1 (Table I): ``P``, ``M`` and ``B`` are the
+auto-encoder, policy and value gradient steps per iteration; ``lambda`` the KL
+penalty coefficient adapted by the factor ``alpha`` against a KL target inside
+the range ``[theta_low, theta_high]`` (the paper's vartheta).
+
+Where a default departs from the paper it says so and why. The paper trains on
+whole episodes in Webots (about 300 episodes, 30 minutes); here a numpy world
+runs 48 episodes side by side, so the defaults are chosen to reach >= 95 %
+held-out success on a 10-robot circle with the ``general`` observation in about
+two minutes on a 2-core laptop (see ``benchmarks/train_speed.py``).
+
+| field     | default | paper | why                                                     |
+|-----------|---------|-------|---------------------------------------------------------|
+| lr_policy | 3e-4    | 1e-4  | 1e-4 is 3-5x slower to 95 % here (``--paper-lrs``)       |
+| lr_value  | 6e-4    | 2e-4  | keeps the paper's 2:1 value/policy ratio                 |
+| kl_alpha  | 0.5     | 0.5   | applied in the direction that bounds the policy change  |
+| P, M, B   | 32,16,16| -     | not given in the paper                                  |
+| returns   | gae     | mc    | rollouts are cut every T steps and bootstrapped anyway;  |
+|           |         |       | GAE(0.95) has lower variance; ``mc`` is the paper's Phi  |
+
+Not in the paper at all: the auto-encoder's size (36 -> 128 -> 32 for the
+``general`` observation), the observation normaliser, advantage normalisation,
+gradient clipping and the desynchronised first episodes (see the fields).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any, Literal
+
+Algo = Literal["pattern-rl", "ppo"]
+ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that shapes a training run (not where it writes)."""
+
+    # ---- problem
+    algo: str = "pattern-rl"
+    """``pattern-rl`` (auto-encoder + adaptive-KL penalty) or ``ppo`` (clipped, no auto-encoder)."""
+    obs: str = "general"
+    """Observation spec name: ``paper`` or ``general``."""
+    k_neighbours: int = 6
+    """``general`` observation: neighbours seen."""
+    n_robots: int = 10
+    seed: int = 0
+
+    # ---- rollouts ("Play game and update memory", Algorithm 1 lines 2-4)
+    n_envs: int = 48
+    """Worlds stepped side by side. Samples per iteration: n_envs * rollout_steps * n_robots."""
+    rollout_steps: int = 32
+    """T: steps each world runs per iteration before an update."""
+    gamma: float = 0.99
+    returns: str = "gae"
+    """``mc``: the paper's Phi = discounted sum of the rewards from t on, advantage Phi - V.
+    ``gae``: generalised advantage estimation with ``gae_lambda`` (lower variance)."""
+    gae_lambda: float = 0.95
+    desync: bool = True
+    """Cut each world's first episode at a random step, so that the worlds, which all start
+    together, do not keep resetting in lockstep (every memory would then hold one phase)."""
+
+    # ---- auto-encoder (lines 5-7)
+    latent_dim: int = 32
+    ae_hidden: int = 128
+    ae_steps: int = 32
+    """P: auto-encoder gradient steps per iteration. The policy reads the encoder's code, so
+    the sooner the code is faithful the sooner the policy can learn: with P = 8 at 3e-4 a
+    10-robot circle took 55-140 s (one seed not at all in 150 s), with P = 32 at 1e-3, 25-27 s."""
+    lr_ae: float = 1e-3
+
+    # ---- policy (lines 8-13)
+    lr_policy: float = 3e-4
+    policy_steps: int = 16
+    """M: policy gradient steps per iteration (minibatches drawn from memory)."""
+    minibatch: int = 3072
+    init_std: float = 0.5
+    """Initial action standard deviation, as a fraction of v_max."""
+    min_std: float = 0.02
+    """Floor of the action standard deviation, fraction of v_max (keeps log-probs finite)."""
+    norm_adv: bool = True
+    """Normalise advantages per minibatch: ``lambda`` and ``kl_target`` then mean the same
+    for any reward scale."""
+    max_grad_norm: float = 0.5
+
+    # ---- value (lines 14-18)
+    lr_value: float = 6e-4
+    value_steps: int = 16
+    """B: value gradient steps per iteration."""
+
+    # ---- adaptive KL penalty (lines 19-23), Pattern-RL only
+    kl_target: float = 0.01
+    kl_beta_high: float = 1.5
+    kl_beta_low: float = 1.0 / 1.5
+    kl_alpha: float = 0.5
+    """alpha: lambda <- lambda / alpha when KL is too high, lambda * alpha when too low."""
+    kl_coef_init: float = 1.0
+    kl_coef_min: float = 1e-3
+    kl_coef_max: float = 100.0
+
+    # ---- standard PPO (the ablation)
+    clip_coef: float = 0.2
+
+    # ---- schedule and evaluation
+    lr_decay: bool = False
+    """Linearly decay learning rates over ``--episodes`` (only when an episode budget is set)."""
+    eval_every: int = 4
+    """Held-out deterministic evaluation every this many iterations."""
+    eval_episodes: int = 64
+    eval_seed_offset: int = 1_000_003
+    """Held-out starts are drawn from seed + this offset: never the training stream."""
+    threads: int = 1
+    """torch threads. The world steps in the same thread; on a busy 2-core machine a second
+    torch thread made the update 7x slower (oversubscription), so 1 is the default."""
+
+    # ---- reward (trainer.world.RewardConfig fields); None keeps the world's default
+    reward: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algorithm '{self.algo}' (known: {', '.join(ALGOS)})")
+        if self.returns not in ("mc", "gae"):
+            raise ValueError(f"unknown returns '{self.returns}' (known: mc, gae)")
+        for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1")
+
+    @property
+    def uses_autoencoder(self) -> bool:
+        return self.algo == "pattern-rl"
+
+    @property
+    def batch_size(self) -> int:
+        """Samples gathered per iteration (every robot of every world, every step)."""
+        return self.n_envs * self.rollout_steps * self.n_robots
+
+    def with_(self, **changes: Any) -> TrainConfig:
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> TrainConfig:
+        known = {f.name for f in fields(TrainConfig)}
+        return TrainConfig(**{k: v for k, v in d.items() if k in known})
+
+
+PAPER_LRS = {"lr_policy": 1e-4, "lr_value": 2e-4}
+"""The paper's learning rates (Table I)."""
