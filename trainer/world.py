@@ -114,6 +114,7 @@ Reward constants (``RewardConfig()``; per robot, per step)
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -123,7 +124,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.formation import assign_slots_batch, lower_bounds, slot_positions
+from runtime.formation import assign_slots_batch, lower_bounds
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern, random_pattern
 from runtime.world import DEFAULT_WORLD, WorldConfig
@@ -219,19 +220,31 @@ def _env_major(X: Array) -> Array:
 # ------------------------------------------------------------------- contacts
 
 
+@functools.lru_cache(maxsize=8)
+def robot_pairs(n: int) -> tuple[IntArray, IntArray, Array]:
+    """The n(n-1)/2 pairs i < j in ``np.triu_indices(n, 1)`` order: (i, j, D) with
+    ``D`` (P, n) the difference operator, ``(D @ x)[p] = x[j_p] - x[i_p]`` exactly
+    (each row holds one +1 and one -1, so the product rounds once, like ``-``)."""
+    i, j = np.triu_indices(n, 1)
+    D = np.zeros((len(i), n))
+    D[np.arange(len(i)), j] = 1.0
+    D[np.arange(len(i)), i] = -1.0
+    D.flags.writeable = False
+    return i.astype(np.int64), j.astype(np.int64), D
+
+
 def swept_contacts(X0: Array, U: Array, limit_m: float) -> BoolArray:
     """Pairs whose closest approach during the straight moves X0 -> X0 + U is below ``limit_m``.
 
-    ``X0``, ``U``: (2, N, E) positions and displacements. Returns (N, N, E),
-    symmetric, False on the diagonal. The closest approach is that of
+    ``X0``, ``U``: (2, N, E) positions and displacements. Returns (P, E) over
+    the pairs of :func:`robot_pairs`. The closest approach is that of
     :func:`runtime.formation.swept_pair_distance` (relative motion
-    ``d(s) = d0 + s dd``, ``s`` in [0, 1]), in the robot-major layout.
+    ``d(s) = d0 + s dd``, ``s`` in [0, 1]), computed pair-major.
     """
-    n = X0.shape[1]
-    d0 = X0[:, None, :, :] - X0[:, :, None, :]  # d0[k, i, j] = x_j - x_i
-    dd = U[:, None, :, :] - U[:, :, None, :]
+    D = robot_pairs(X0.shape[1])[2]
+    d0 = D @ X0  # (2, P, E): x_j - x_i
+    dd = D @ U
     a = d0[0] * d0[0] + d0[1] * d0[1]
-    a[np.arange(n), np.arange(n)] = np.inf  # a robot never meets itself
     b = d0[0] * dd[0] + d0[1] * dd[1]
     c = dd[0] * dd[0] + dd[1] * dd[1]
     s = np.divide(-b, c, out=np.zeros_like(b), where=c > 0.0)  # the time of closest approach
@@ -293,6 +306,7 @@ class BatchWorld:
         self._reach = world.max_step_m
         self._formed_tol2 = world.formed_tol_m**2
         self._diag = np.arange(N)
+        self._lower = np.tril(np.ones((N, N), dtype=bool), -1)  # [i, j]: j < i
         self._env_col = np.arange(E)[:, None]
         self._no_obs: F32Array = np.zeros((E, N, 0), dtype=np.float32)
         self._no_obs.flags.writeable = False
@@ -364,7 +378,8 @@ class BatchWorld:
     def _set_pattern_names(self, names: tuple[str, ...]) -> None:
         for name in names:  # validate every pattern now: a bad one fails here, not mid-run
             if name != RANDOM_PATTERN and name not in self._cache:
-                self._cache[name] = make_pattern(name, self.n_robots, self.world)
+                C = make_pattern(name, self.n_robots, self.world)
+                self._cache[name] = C - C.mean(axis=0)  # centred, as the assignment centres it
         self.patterns = names
 
     def set_patterns(self, patterns: Sequence[str | Path] | str, *, retarget: bool = True) -> None:
@@ -392,27 +407,34 @@ class BatchWorld:
         rng = self._rngs[e]
         k = int(rng.integers(len(self.patterns)))
         name = self.patterns[k]
-        C = random_pattern(rng, self.n_robots, self.world) if name == RANDOM_PATTERN else None
-        C = self._cache[name] if C is None else C
-        self.pattern[e] = C - C.mean(axis=0)  # centred, as the assignment's cost centres it
+        if name == RANDOM_PATTERN:
+            C = random_pattern(rng, self.n_robots, self.world)
+            self.pattern[e] = C - C.mean(axis=0)
+        else:
+            self.pattern[e] = self._cache[name]
         self.pattern_ids[e] = k
 
     # ------------------------------------------------------------------ reset
 
-    def _draw_starts(self, e: int) -> Array:
-        """N starts uniform in the arena, pairwise >= start_separation, from env e's generator."""
-        rng = self._rngs[e]
+    def _draw_starts(self, ids: IntArray) -> Array:
+        """N starts per env of ``ids``, uniform in the arena, pairwise >= start_separation.
+
+        Each env draws from its own generator only, and what it redraws depends
+        only on its own points, so its starts do not depend on which other envs
+        reset with it. Returns (k, N, 2).
+        """
+        rngs = [self._rngs[int(e)] for e in ids]
         N, side = self.n_robots, self.world.arena_m
         sep2 = self.world.start_separation_m**2
-        P = rng.uniform(0.0, side, (N, 2))
-        lower = np.tril(np.ones((N, N), dtype=bool), -1)  # j < i
+        P = np.stack([rng.uniform(0.0, side, (N, 2)) for rng in rngs])
         for _ in range(_MAX_START_DRAWS):
-            diff = P[:, None, :] - P[None, :, :]
-            close = (np.einsum("ijk,ijk->ij", diff, diff) < sep2) & lower
-            bad = close.any(axis=1)  # too close to a lower-numbered robot
+            diff = P[:, :, None, :] - P[:, None, :, :]
+            close = np.einsum("eijk,eijk->eij", diff, diff) < sep2
+            bad = (close & self._lower).any(axis=2)  # too close to a lower-numbered robot
             if not bad.any():
                 return P
-            P[bad] = rng.uniform(0.0, side, (int(bad.sum()), 2))
+            for r in np.flatnonzero(bad.any(axis=1)):
+                P[r, bad[r]] = rngs[r].uniform(0.0, side, (int(bad[r].sum()), 2))
         raise RuntimeError("could not draw separated starts; the arena is too crowded")
 
     def _ids(self, env_ids: NDArray[np.integer] | None) -> IntArray:
@@ -466,26 +488,26 @@ class BatchWorld:
         if len(ids) == 0:
             return
         for e in ids:
-            e = int(e)
-            self._draw_pattern(e)
-            self.frames[e] = self._draw_starts(e)[None]
+            self._draw_pattern(int(e))
+        self.frames[ids] = self._draw_starts(ids)[:, None]
         self._begin_episodes(ids)
 
     def _begin_episodes(self, ids: IntArray) -> None:
         """Fresh assignment and counters for ``ids`` from their current positions."""
         P = self.frames[ids, 0]
-        C = self.pattern[ids]
-        slots = assign_slots_batch(P, C)
-        goals = slot_positions(P, C, slots)
-        gap = P - goals
-        dist = np.sqrt(np.einsum("eik,eik->ei", gap, gap))
+        slots = assign_slots_batch(P, self.pattern[ids])
+        X = P.transpose(2, 1, 0)
+        Q = self.pattern[ids[:, None], slots].transpose(2, 1, 0)  # the (centred) slot points
+        G = Q + X.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)  # = slot_positions(...)
+        gap = X - G
+        dist2 = gap[0] * gap[0] + gap[1] * gap[1]
         self.slots = self.slots.copy()  # arrays handed out stay as they were
         self.slots[ids] = slots
         self.error = self.error.copy()
-        self.error[ids] = np.sqrt((dist**2).mean(axis=1))
-        self._X[:, :, ids] = P.transpose(2, 1, 0)
-        self._G[:, :, ids] = goals.transpose(2, 1, 0)
-        self._dist[:, ids] = dist.T
+        self.error[ids] = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))
+        self._X[:, :, ids] = X
+        self._G[:, :, ids] = G
+        self._dist[:, ids] = np.sqrt(dist2)
         self._travel[:, ids] = 0.0
         self.steps[ids] = 0
         self.episode_collisions[ids] = 0
@@ -589,12 +611,15 @@ class BatchWorld:
         X1 = X0 + U
 
         # contacts: collisions from the swept paths, overlaps pushed apart
-        hit = swept_contacts(X0, U, self._two_r - CONTACT_TOL_M)
-        touched_envs = np.flatnonzero(hit.any(axis=(0, 1)))
+        hit = swept_contacts(X0, U, self._two_r - CONTACT_TOL_M)  # (P, E)
+        touched_envs = np.flatnonzero(hit.any(axis=0))
         hits, collisions = self._no_hits, self._no_collisions
         if len(touched_envs):
             k = touched_envs
-            Xk, touched = self._resolve(X0[:, :, k], X1[:, :, k], hit[:, :, k])
+            pi, pj, _ = robot_pairs(self.n_robots)
+            pairs = np.zeros((self.n_robots, self.n_robots, len(k)), dtype=bool)
+            pairs[pi, pj] = pairs[pj, pi] = hit[:, k]
+            Xk, touched = self._resolve(X0[:, :, k], X1[:, :, k], pairs)
             X1[:, :, k] = Xk
             hits = np.zeros_like(self._no_hits)
             hits[:, k] = touched.sum(axis=1)
@@ -681,5 +706,6 @@ __all__ = [
     "EpisodeStats",
     "RewardConfig",
     "StepResult",
+    "robot_pairs",
     "swept_contacts",
 ]

@@ -25,6 +25,7 @@ from trainer.world import (
     PAPER_REWARD,
     BatchWorld,
     RewardConfig,
+    robot_pairs,
     swept_contacts,
 )
 
@@ -219,12 +220,14 @@ def test_swept_contacts_is_the_runtime_collision_check(seed: int, n: int, spread
     P1 = P0 + rng.uniform(-REACH, REACH, (E, n, 2))
     P1[0, 0], P1[0, 1] = P0[0, 1], P0[0, 0]  # two robots swap places: they pass through
     limit = TWO_R - CONTACT_TOL_M
-    ours = swept_contacts(P0.transpose(2, 1, 0), (P1 - P0).transpose(2, 1, 0), limit)
+    X0 = np.ascontiguousarray(P0.transpose(2, 1, 0))
+    ours = swept_contacts(X0, np.ascontiguousarray((P1 - P0).transpose(2, 1, 0)), limit)
+    i, j, D = robot_pairs(n)
+    np.testing.assert_array_equal(D @ X0, X0[:, j] - X0[:, i])  # exact differences
     theirs = swept_pair_distance(P0, P1) < limit
-    np.testing.assert_array_equal(ours.transpose(2, 0, 1), theirs)
-    np.testing.assert_array_equal(
-        np.triu(ours.transpose(2, 0, 1), 1).sum(axis=(1, 2)), count_collisions(P0, P1)
-    )
+    np.testing.assert_array_equal(ours.T, theirs[:, i, j])
+    np.testing.assert_array_equal(ours.sum(axis=0), count_collisions(P0, P1))
+    assert ours[0, 0]  # the swap
 
 
 # ---------------------------------------------------------------- assignment
