@@ -219,11 +219,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         ev_text = ""
         if manifest.evaluation:
-            e = manifest.evaluation
+            m = manifest.evaluation
             ev_text = (
-                f"; evaluation ({e['episodes']} episodes, ORCA): success "
-                f"{100 * e['success_rate']:.1f} %, {e['collisions']} collisions"
-                + (f", steps {e['steps_ratio']:.3f}x the lower bound" if e["steps_ratio"] else "")
+                f"; evaluation ({m['episodes']} episodes, ORCA): success "
+                f"{100 * m['success_rate']:.1f} %, {m['collisions']} collisions"
+                + (f", steps {m['steps_ratio']:.3f}x the lower bound" if m["steps_ratio"] else "")
             )
         print(
             f"{args.out} ({summary['size_bytes'] // 1024} KB): {cfg.algo}, {spec.name} "

@@ -256,7 +256,7 @@ def _warm_start(agent: Agent, opt: Optimisers, obs: torch.Tensor, cfg: TrainConf
         for _ in range(300):
             loss = (agent.decoder(e) - target).pow(2).sum(-1).mean()
             dec_opt.zero_grad()
-            loss.backward()  # type: ignore[no-untyped-call]
+            loss.backward()
             dec_opt.step()
 
 
@@ -378,7 +378,12 @@ def train(
     kl_coef = cfg.kl_coef_init
     it, episodes, agent_steps, wall0, stage0 = 0, 0, 0, 0.0, 0
     curve: list[dict[str, Any]] = []
-    best = {"success": -1.0, "steps": math.inf, "iteration": -1, "state": agent.state_dict()}
+    best: dict[str, Any] = {
+        "success": -1.0,
+        "steps": math.inf,
+        "iteration": -1,
+        "state": agent.state_dict(),
+    }
     warm_start = False
     if plan.resume:
         ck = _load_checkpoint(Path(plan.resume))
@@ -433,8 +438,8 @@ def train(
                 it_returns, it_success = [], []
                 with torch.no_grad():
                     for _ in range(T):
-                        o = torch.from_numpy(obs.reshape(E * N, -1))
-                        e = agent.features(o)
+                        o_t = torch.from_numpy(obs.reshape(E * N, -1))
+                        e = agent.features(o_t)
                         mean, std = agent.policy(e)
                         value = agent.value(e)
                         a = mean + std * torch.randn(mean.shape, generator=gen)
@@ -461,8 +466,8 @@ def train(
                             res.done,
                         )
                         obs = res.obs
-                    o = torch.from_numpy(obs.reshape(E * N, -1))
-                    last_values = agent.value(agent.features(o)).numpy().reshape(E, N)
+                    o_t = torch.from_numpy(obs.reshape(E * N, -1))
+                    last_values = agent.value(agent.features(o_t)).numpy().reshape(E, N)
                 batch = mem.batch(last_values, cfg.gamma, cfg.returns, cfg.gae_lambda)
                 agent_steps += E * N * T
                 episodes += len(it_returns)
@@ -529,7 +534,7 @@ def train(
                             )
 
                 recent = ep_returns[-4 * E :]
-                row = {
+                row: dict[str, Any] = {
                     "iteration": it,
                     "stage": stage,
                     "pattern": label,
@@ -565,7 +570,7 @@ def train(
                         it,
                         episodes,
                         agent_steps,
-                        row["wall_s"],
+                        float(row["wall_s"]),
                         stage,
                         curve,
                         best,

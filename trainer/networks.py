@@ -1,0 +1,184 @@
+"""The networks of Pattern-RL (paper section III.B and IV.B).
+
+::
+
+    raw obs o --normaliser--> o' --encoder I_mu--> e --policy pi_theta--> mean, std   (action)
+                               \\--decoder (training only: reconstruction loss)
+                                                  e --value V_phi--> V(e)
+
+* **Observation normaliser**: running mean and standard deviation of the raw
+  observations, updated by the training loop and frozen inside an update;
+  baked into the exported brain as constants. Features whose spread is below
+  ``STD_FLOOR`` (e.g. the neighbour mask when every neighbour is always
+  present) are only centred, not scaled, so a value never seen in training
+  stays moderate instead of being blown up by ``1 / std``. Clipped to +-5.
+* **Auto-encoder** (Pattern-RL only): encoder ``D -> ae_hidden -> latent``
+  (ReLU, linear latent), decoder the mirror image. It is trained only by its
+  reconstruction loss (Algorithm 1 lines 5-7); the policy and value networks
+  read its code ``e`` and do not back-propagate into it.
+* **Policy** ``pi_theta``: 256-128-128 ReLU; a tanh mean and a softplus
+  standard deviation (plus a small floor) per action axis, in units of v_max.
+  Actions are cartesian velocities ``a = v_max * sample``; the deterministic
+  action is ``v_max * tanh(.)``.
+* **Value** ``V_phi``: 128-128-256 ReLU and one linear output.
+
+With ``algo="ppo"`` (the ablation) there is no auto-encoder: policy and value
+read the normalised observation directly; the networks are otherwise the same.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import nn
+
+from trainer.config import TrainConfig
+
+NORM_CLIP = 5.0
+STD_FLOOR = 1e-3
+POLICY_HIDDEN = (256, 128, 128)
+VALUE_HIDDEN = (128, 128, 256)
+LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+class ObsNormaliser(nn.Module):
+    """``clip((o - mean) * inv_std, -5, 5)`` with running statistics (float64 inside)."""
+
+    mean64: torch.Tensor
+    var64: torch.Tensor
+    count: torch.Tensor
+    shift: torch.Tensor
+    scale: torch.Tensor
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.register_buffer("mean64", torch.zeros(dim, dtype=torch.float64))
+        self.register_buffer("var64", torch.ones(dim, dtype=torch.float64))
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("shift", torch.zeros(dim))
+        self.register_buffer("scale", torch.ones(dim))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor | NDArray[np.floating]) -> None:
+        """Fold a batch (..., D) into the statistics (Chan et al.'s parallel update)."""
+        b = torch.as_tensor(np.asarray(x), dtype=torch.float64).reshape(-1, self.mean64.numel())
+        n_b = float(b.shape[0])
+        if n_b == 0:
+            return
+        mean_b, var_b = b.mean(0), b.var(0, unbiased=False)
+        n_a = float(self.count)
+        total = n_a + n_b
+        delta = mean_b - self.mean64
+        self.mean64 += delta * (n_b / total)
+        self.var64.copy_((self.var64 * n_a + var_b * n_b + delta**2 * (n_a * n_b / total)) / total)
+        self.count.fill_(total)
+        self._refresh()
+
+    def _refresh(self) -> None:
+        std = self.var64.sqrt()
+        scale = torch.where(std > STD_FLOOR, 1.0 / std.clamp_min(STD_FLOOR), torch.ones_like(std))
+        self.shift.copy_(self.mean64.float())
+        self.scale.copy_(scale.float())
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        out: torch.Tensor = ((obs - self.shift) * self.scale).clamp(-NORM_CLIP, NORM_CLIP)
+        return out
+
+
+def mlp(sizes: list[int], out_gain: float = 1.0) -> nn.Sequential:
+    """Linear layers with ReLU between them (none after the last), orthogonal init."""
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        lin = nn.Linear(sizes[i], sizes[i + 1])
+        last = i == len(sizes) - 2
+        nn.init.orthogonal_(lin.weight, out_gain if last else math.sqrt(2.0))
+        nn.init.zeros_(lin.bias)
+        layers.append(lin)
+        if not last:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+class Policy(nn.Module):
+    """pi_theta(a | e): Gaussian with tanh mean and softplus std, both in units of v_max."""
+
+    def __init__(self, in_dim: int, init_std: float = 0.5, min_std: float = 0.02) -> None:
+        super().__init__()
+        self.trunk = nn.Sequential(mlp([in_dim, *POLICY_HIDDEN], math.sqrt(2.0)), nn.ReLU())
+        self.mean_head = nn.Linear(POLICY_HIDDEN[-1], 2)
+        self.std_head = nn.Linear(POLICY_HIDDEN[-1], 2)
+        nn.init.orthogonal_(self.mean_head.weight, 0.01)
+        nn.init.zeros_(self.mean_head.bias)
+        nn.init.orthogonal_(self.std_head.weight, 0.01)
+        # softplus(b) + min_std = init_std at the start
+        nn.init.constant_(self.std_head.bias, math.log(math.expm1(max(init_std - min_std, 1e-3))))
+        self.min_std = float(min_std)
+
+    def forward(self, e: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        h = self.trunk(e)
+        mean = torch.tanh(self.mean_head(h))
+        std = nn.functional.softplus(self.std_head(h)) + self.min_std
+        return mean, std
+
+
+class Value(nn.Module):
+    """V_phi(e): 128-128-256 ReLU, one output."""
+
+    def __init__(self, in_dim: int) -> None:
+        super().__init__()
+        self.net = mlp([in_dim, *VALUE_HIDDEN, 1])
+
+    def forward(self, e: torch.Tensor) -> torch.Tensor:
+        out: torch.Tensor = self.net(e).squeeze(-1)
+        return out
+
+
+class Agent(nn.Module):
+    """Normaliser, auto-encoder (Pattern-RL only), policy and value, with v_max."""
+
+    def __init__(self, obs_dim: int, cfg: TrainConfig, v_max_mps: float) -> None:
+        super().__init__()
+        self.obs_dim = obs_dim
+        self.v_max_mps = float(v_max_mps)
+        self.normaliser = ObsNormaliser(obs_dim)
+        self.encoder: nn.Module
+        self.decoder: nn.Module | None
+        if cfg.uses_autoencoder:
+            self.encoder = mlp([obs_dim, cfg.ae_hidden, cfg.latent_dim])
+            self.decoder = mlp([cfg.latent_dim, cfg.ae_hidden, obs_dim])
+            feat = cfg.latent_dim
+        else:
+            self.encoder = nn.Identity()
+            self.decoder = None
+            feat = obs_dim
+        self.policy = Policy(feat, cfg.init_std, cfg.min_std)
+        self.value = Value(feat)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """e = I_mu(normalise(o)); the normalised observation itself without auto-encoder."""
+        out: torch.Tensor = self.encoder(self.normaliser(obs))
+        return out
+
+    def act_mps(self, obs: torch.Tensor) -> torch.Tensor:
+        """Deterministic action in m/s: v_max * tanh(.). What the exported brain computes."""
+        mean, _ = self.policy(self.features(obs))
+        out: torch.Tensor = mean * self.v_max_mps
+        return out
+
+
+def gaussian_logprob(a: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+    """log N(a; mean, diag(std^2)), summed over the last axis."""
+    z = (a - mean) / std
+    return (-0.5 * z * z - std.log() - LOG_SQRT_2PI).sum(-1)
+
+
+def gaussian_kl(
+    mean: torch.Tensor, std: torch.Tensor, mean_old: torch.Tensor, std_old: torch.Tensor
+) -> torch.Tensor:
+    """KL(pi || pi_old) for diagonal Gaussians, summed over the last axis."""
+    return (
+        (std_old / std).log() + (std**2 + (mean - mean_old) ** 2) / (2.0 * std_old**2) - 0.5
+    ).sum(-1)
