@@ -113,6 +113,7 @@ class PatternFormationEnv(ParallelEnv[str, NDArray[np.float32], NDArray[np.float
         }
         self._act_spaces = {a: spaces.Box(-v, v, (2,), np.float32) for a in self.possible_agents}
         self._fresh = True  # the world holds a new episode nobody has seen yet
+        self._final_positions: NDArray[np.float64] | None = None  # of an ended episode
 
     # The same space object on every call (PettingZoo seeds spaces through them).
     def observation_space(self, agent: str) -> spaces.Box:
@@ -134,6 +135,7 @@ class PatternFormationEnv(ParallelEnv[str, NDArray[np.float32], NDArray[np.float
         else:
             obs = self.world.reset()[0]
         self._fresh = False
+        self._final_positions = None
         self.agents = list(self.possible_agents)
         return self._obs_dict(obs), {a: {} for a in self.agents}
 
@@ -158,6 +160,7 @@ class PatternFormationEnv(ParallelEnv[str, NDArray[np.float32], NDArray[np.float
         if res.episode is not None:  # the world reset itself: report the episode's end
             obs = res.episode.final_obs[0]
             error_before_reset = float(res.episode.final_error[0])
+            self._final_positions = res.episode.final_positions[0]
             self._fresh = True
         else:
             obs = res.obs[0]
@@ -184,8 +187,10 @@ class PatternFormationEnv(ParallelEnv[str, NDArray[np.float32], NDArray[np.float
         return None
 
     def state(self) -> NDArray[np.float32]:
-        """Global state: every robot's position (m), flattened, (2N,)."""
-        out: NDArray[np.float32] = self.world.positions[0].reshape(-1).astype(np.float32)
+        """Global state: every robot's position (m), flattened, (2N,); after the
+        episode's last step, where it ended."""
+        P = self.world.positions[0] if self._final_positions is None else self._final_positions
+        out: NDArray[np.float32] = P.reshape(-1).astype(np.float32)
         return out
 
 

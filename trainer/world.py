@@ -182,6 +182,7 @@ class EpisodeStats(NamedTuple):
     episode_return: Array  # (k,) sum over steps of the robots' mean reward
     pattern_ids: IntArray  # (k,) index into the pattern set
     final_obs: F32Array  # (k, N, D) last observation, before the reset
+    final_positions: Array  # (k, N, 2) where the robots ended (m)
     lower_bound_steps: IntArray | None  # (k,) when compute_bounds
     lower_bound_travel: Array | None  # (k,) metres, when compute_bounds
 
@@ -675,6 +676,7 @@ class BatchWorld:
                 episode_return=self.episode_return[ended].copy(),
                 pattern_ids=self.pattern_ids[ended].copy(),
                 final_obs=obs[ended],
+                final_positions=P1[ended],
                 lower_bound_steps=self.lower_bound_steps[ended].copy()
                 if self.compute_bounds
                 else None,

@@ -83,6 +83,7 @@ def test_truncation_and_missing_actions_hold_still() -> None:
     for _ in range(2):
         obs, rew, term, trunc, _ = env.step({})
     assert all(np.all(o[4:6] == 0.0) for o in obs.values())  # the last obs: no velocity
+    np.testing.assert_array_equal(env.state(), start)  # where the episode ended
     assert all(trunc.values()) and not any(term.values())
     assert env.agents == []
     assert all(r == pytest.approx(env.world.reward_config.step_penalty) for r in rew.values())
