@@ -163,29 +163,23 @@ def general_observation(
     out[..., 4:6] = vel
     m = min(k, n - 1)
     if m > 0:
-        rel = p[..., None, :, :] - p[..., :, None, :]  # (..., i, j, 2)
-        rvel = vel[..., None, :, :] - vel[..., :, None, :]
-        dist = np.einsum("...ijk,...ijk->...ij", rel, rel)
-        dist[..., np.arange(n), np.arange(n)] = np.inf
-        if m < n - 1:
-            part = np.argpartition(dist, m - 1, axis=-1)[..., :m]
-            pd = np.take_along_axis(dist, part, -1)
-            # nearest first, ties by index: sort on (distance, index)
-            key = np.lexsort((part, pd), axis=-1)
-            order = np.take_along_axis(part, key, -1)
-        else:
-            order = np.argsort(dist, axis=-1, kind="stable")[..., :m]
-        idx = order[..., None]
-        nb = np.concatenate(
-            [
-                np.take_along_axis(rel, idx, -2),
-                np.take_along_axis(rvel, idx, -2),
-                np.ones((*order.shape, 1)),
-            ],
-            axis=-1,
-        )  # (..., i, m, 5)
+        lead = p.shape[:-2]
+        pf = p.reshape(-1, n, 2)
+        vf = vel.reshape(-1, n, 2)
+        b = pf.shape[0]
+        dx = pf[:, None, :, 0] - pf[:, :, None, 0]  # (b, i, j): x_j - x_i
+        dy = pf[:, None, :, 1] - pf[:, :, None, 1]
+        dist = dx * dx + dy * dy
+        dist[:, np.arange(n), np.arange(n)] = np.inf
+        # nearest first; a stable sort breaks ties by robot index
+        order = np.argsort(dist, axis=-1, kind="stable")[:, :, :m]  # (b, i, m)
+        rows = np.arange(b)[:, None, None]
+        nb = np.empty((b, n, m, GENERAL_PER_NEIGHBOUR))
+        nb[..., 0:2] = pf[rows, order] - pf[:, :, None, :]
+        nb[..., 2:4] = vf[rows, order] - vf[:, :, None, :]
+        nb[..., 4] = 1.0
         out[..., GENERAL_FIXED : GENERAL_FIXED + GENERAL_PER_NEIGHBOUR * m] = nb.reshape(
-            *nb.shape[:-2], GENERAL_PER_NEIGHBOUR * m
+            *lead, n, GENERAL_PER_NEIGHBOUR * m
         )
     return out
 
