@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime import keys
-from runtime.formation import assign_slots, centred
+from runtime.formation import assign_slots, centred, lower_bounds
 from runtime.messages import (
     Command,
     PatternMsg,
@@ -126,6 +126,15 @@ def write_log(path: Path, steps: int, n: int, phase_steps: int, seed: int = 0) -
         return rec.messages_written
 
 
+def _lower_bounds(frames: analysis.Frames, report: analysis.RunReport) -> None:
+    """The analysis's lower-bound calls alone: one per phase, on its first poses."""
+    w = report.world
+    for ph, pats in zip(report.phases, report.phase_patterns, strict=True):
+        row = frames.row(ph.start_step)
+        cols = np.nonzero(frames.present[row])[0]
+        lower_bounds(frames.xy[row][cols], pats[0].points, w.v_max_mps, w.dt_s)
+
+
 @dataclass(frozen=True)
 class Row:
     what: str
@@ -151,25 +160,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--log", type=Path, default=None,
                     help="where to write the log (default: a temporary file, removed after)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="with --log: read that file if it exists instead of writing it again")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     args = ap.parse_args(argv)
 
     with tempfile.TemporaryDirectory() as tmp:
         path = args.log if args.log is not None else Path(tmp) / "bench.mcap"
         t = time.perf_counter()
-        total = write_log(path, args.steps, args.robots, args.phase_steps)
+        if args.reuse and path.is_file():
+            total = sum(1 for _ in analysis.iter_messages(path))
+        else:
+            total = write_log(path, args.steps, args.robots, args.phase_steps)
         write_s = time.perf_counter() - t
-
-        # lower bounds: timed inside the analysis by wrapping the function it calls
-        lb_time = [0.0]
-        real_lb = analysis.lower_bounds
-
-        def timed_lb(*a: object, **k: object) -> tuple[float, int]:
-            t = time.perf_counter()
-            try:
-                return real_lb(*a, **k)  # type: ignore[arg-type]
-            finally:
-                lb_time[0] += time.perf_counter() - t
 
         def mcap_only() -> None:
             for _ in iter_log(path):
@@ -182,20 +185,17 @@ def main(argv: list[str] | None = None) -> int:
         def full() -> None:
             analysis.analyse(analysis.read_log(path))
 
-        report = analysis.analyse(analysis.read_log(path))  # warm-up, and the facts
+        data = analysis.read_log(path)  # warm-up, and the facts
+        report = analysis.analyse(data)
         assert report.messages == total, (report.messages, total)
         rows = []
         for what, fn in (("mcap NonSeekingReader", mcap_only),
                          ("analysis.iter_messages", reader_only),
                          ("read_log", lambda: analysis.read_log(path)),
                          ("read_log + analyse", full)):
-            if fn is full:
-                analysis.lower_bounds = timed_lb  # type: ignore[assignment]
-                lb_time[0] = 0.0
             s = _median_time(fn, args.repeats)
-            analysis.lower_bounds = real_lb
             rows.append(Row(what, s, total, total / s))
-        lb_s = lb_time[0] / args.repeats
+        lb_s = _median_time(lambda: _lower_bounds(data.frames, report), args.repeats)
         rows.append(Row(f"of which lower bounds ({len(report.phases)} phases)", lb_s, total,
                         total / lb_s if lb_s else float("inf")))
         size = path.stat().st_size

@@ -147,7 +147,7 @@ def load_recording(
                         played.append(new)
                         k = len(played) - 1
             key_of[ch.id] = k
-        if k < 0 or lt < t_from:
+        if k < 0 or (start_s > 0 and lt < t_from):
             continue
         times.append(lt)
         index.append(k)
@@ -163,17 +163,26 @@ def play(
     stop: threading.Event | None = None,
     wait_subscribers_s: float = 0.0,
     log: Callable[[str], None] | None = None,
+    linger_s: float = 0.5,
 ) -> PlayResult:
     """Put every message of ``rec`` on ``session`` with its recorded timing / ``rate``.
 
     ``loops`` 0 plays until ``stop`` is set. Messages are put in file order; a
     message whose time has passed (a slow machine) goes out at once, so order
-    is always kept.
+    is always kept. Publishers block rather than drop when the transport queue is
+    full (a fast ``rate``), and after the last message the session is given
+    ``linger_s`` (cut short by ``stop``) to deliver what is still queued before
+    the caller closes it.
     """
+    import zenoh
+
     if not (rate > 0.0):
         raise ValueError(f"rate must be > 0, got {rate}")
     stop = stop if stop is not None else threading.Event()
-    pubs = [session.declare_publisher(k, express=True) for k in rec.keys]
+    pubs = [session.declare_publisher(k, express=True,
+                                      congestion_control=zenoh.CongestionControl.BLOCK,
+                                      reliability=zenoh.Reliability.RELIABLE)
+            for k in rec.keys]
     matched = True
     try:
         if wait_subscribers_s > 0 and pubs:
@@ -207,7 +216,10 @@ def play(
                 sent += 1
             else:
                 done += 1
-        return PlayResult(sent, done, time.monotonic() - t_start, interrupted, matched)
+        seconds = time.monotonic() - t_start
+        if sent and not interrupted:
+            stop.wait(linger_s)
+        return PlayResult(sent, done, seconds, interrupted, matched)
     finally:
         for p in pubs:
             try:

@@ -303,6 +303,13 @@ def _check(args: argparse.Namespace) -> None:
             validate_swarm(args.swarm)
         except ValueError as e:
             raise InputError(str(e)) from None
+    if args.topics:
+        from sim_bridge.playback import _topic_filter
+
+        try:
+            _topic_filter(args.topics)
+        except LogError as e:
+            raise InputError(str(e)) from None
     play_only = [o for o, v in (("--rate", args.rate != 1.0), ("--loop", args.loop != 1),
                                 ("--topics", args.topics), ("--start", args.start != 0.0),
                                 ("--swarm", args.swarm)) if v]
