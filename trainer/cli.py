@@ -150,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         result = train(cfg, plan)
     except InitError as e:
         return _fail(str(e))
+    cfg = result.config  # a resumed run keeps its checkpoint's configuration
 
     spec = obs_spec_for(cfg)
     world = plan.world

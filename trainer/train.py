@@ -45,7 +45,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -56,7 +56,7 @@ from runtime.observation import ObservationSpec
 from runtime.patterns import make_pattern, pattern_label
 from runtime.world import DEFAULT_WORLD, WorldConfig
 from trainer.config import TrainConfig
-from trainer.export import BrainFileError, agent_from_onnx
+from trainer.export import BrainFileError, agent_from_onnx, read_manifest
 from trainer.networks import Agent, gaussian_logprob
 from trainer.storage import Rollout
 from trainer.update import Optimisers, UpdateStats, make_optimisers, update
@@ -135,7 +135,7 @@ class TrainResult:
     episodes: int
     wall_s: float
     stopped: str
-    extra: dict[str, Any] = field(default_factory=dict)
+    config: TrainConfig
 
 
 def obs_spec_for(cfg: TrainConfig) -> ObservationSpec:
@@ -210,8 +210,10 @@ def load_init(path: str, cfg: TrainConfig, v_max_mps: float, obs_dim: int) -> Ag
     p = Path(path)
     if not p.is_file():
         raise InitError(f"cannot read --init {path}: no such file")
+    spec = obs_spec_for(cfg)
     if p.suffix == ".onnx":
         try:
+            theirs = read_manifest(p).observation.to_dict()
             agent = agent_from_onnx(p, cfg, v_max_mps)
         except BrainFileError as e:
             raise InitError(str(e)) from None
@@ -220,11 +222,12 @@ def load_init(path: str, cfg: TrainConfig, v_max_mps: float, obs_dim: int) -> Ag
         ck_cfg = TrainConfig.from_dict(ck["config"])
         if ck_cfg.algo != cfg.algo:
             raise InitError(f"{path} was trained with --algo {ck_cfg.algo}, not {cfg.algo}")
+        theirs = ck["observation"]
         agent = Agent(int(ck["obs_dim"]), ck_cfg, v_max_mps)
         agent.load_state_dict(ck.get("best_state") or ck["agent"])
-    if agent.obs_dim != obs_dim:
+    if theirs != spec.to_dict() or agent.obs_dim != obs_dim:
         raise InitError(
-            f"{path} reads observations of size {agent.obs_dim}, this run builds {obs_dim} "
+            f"{path} reads the observation {theirs}, this run builds {spec.to_dict()} "
             f"(--obs {cfg.obs}, {cfg.n_robots} robots)"
         )
     return agent
@@ -232,8 +235,8 @@ def load_init(path: str, cfg: TrainConfig, v_max_mps: float, obs_dim: int) -> Ag
 
 def _load_checkpoint(p: Path) -> dict[str, Any]:
     try:
-        ck: dict[str, Any] = torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as e:  # torch raises pickle and zip errors alike
+        ck: dict[str, Any] = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises unpickling and zip errors alike
         raise InitError(f"cannot read checkpoint {p}: {str(e).splitlines()[0][:200]}") from None
     if not isinstance(ck, dict) or "agent" not in ck or "config" not in ck:
         raise InitError(f"{p} is not a Pattern-RL checkpoint")
@@ -364,7 +367,13 @@ def train(
     plan: RunPlan,
     on_iteration: Callable[[dict[str, Any]], None] | None = None,
 ) -> TrainResult:
-    """Train per ``plan``; writes checkpoints and the curve when ``plan.write_files``."""
+    """Train per ``plan``; writes checkpoints and the curve when ``plan.write_files``.
+
+    A resumed run (``plan.resume``) goes on with the configuration saved in its checkpoint.
+    """
+    ck = _load_checkpoint(Path(plan.resume)) if plan.resume else None
+    if ck is not None:
+        cfg = TrainConfig.from_dict(ck["config"])
     set_determinism(cfg)
     world = plan.world
     spec = obs_spec_for(cfg)
@@ -385,10 +394,7 @@ def train(
         "state": agent.state_dict(),
     }
     warm_start = False
-    if plan.resume:
-        ck = _load_checkpoint(Path(plan.resume))
-        if TrainConfig.from_dict(ck["config"]).algo != cfg.algo or ck["obs_dim"] != spec.dim:
-            raise InitError(f"{plan.resume} was trained with another algorithm or observation")
+    if ck is not None:
         agent.load_state_dict(ck["agent"])
         for o, s in zip(opt, ck["optimisers"], strict=True):
             if o is not None and s is not None:
@@ -637,6 +643,7 @@ def train(
         episodes=episodes,
         wall_s=wall,
         stopped=stopped,
+        config=cfg,
     )
 
 
