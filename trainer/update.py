@@ -34,6 +34,15 @@ We implement the direction that bounds the policy change::
 
 with the paper's alpha = 0.5 exposed as ``TrainConfig.kl_alpha``.
 
+The KL is measured against the behaviour policy stored in memory (its mean and
+std per sample), so it counts every change of the action distribution, the
+auto-encoder's too: ``UpdateStats.kl_encoder`` is the part already there before
+the first policy step (the new code ``e`` under the old policy), which lambda
+cannot control. It stays around 5 % of the KL at the defaults. (When all worlds
+reset in lockstep, each memory held one episode phase and KL swung by 10x from
+one iteration to the next, driving lambda to its ceiling: hence the training
+loop's desynchronised first episodes.)
+
 Samples are drawn from memory as minibatches of ``cfg.minibatch`` rows: each
 of the P, M and B steps takes the next slice of a shuffled permutation, and a
 new permutation is drawn when one is used up. All randomness comes from the
