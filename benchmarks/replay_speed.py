@@ -211,8 +211,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
+    made = "reused" if args.reuse and args.log is not None else f"written in {write_s:.1f} s"
     print(f"replay speed: {args.steps} steps x {args.robots} robots, {len(report.phases)} phases, "
-          f"{total} messages, {size / 1e6:.1f} MB (written in {write_s:.1f} s)")
+          f"{total} messages, {size / 1e6:.1f} MB ({made})")
     print(f"median of {args.repeats}; {os.cpu_count()} CPUs, 1-min load average {load:.2f}")
     hdr = f"{'what':<36} {'seconds':>8} {'messages/s':>12}"
     print(hdr)
