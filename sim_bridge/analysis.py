@@ -738,7 +738,10 @@ class PhaseReport:
     brains: dict[str, int]
     """brain id -> commands it decided in this phase"""
     swaps_accepted: int
+    """Robots that took a new brain (``brain_swap`` accepted, old brain != new brain)."""
     swaps_refused: int
+    swaps_unchanged: int
+    """Swaps answered "already running": the robot had that brain."""
     swapped_to: list[str]
     joined: list[int]
     lost: list[int]
@@ -996,7 +999,9 @@ def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool
     series = StepSeries(ph.index, steps[: last + 1], steps[: last + 1].astype(np.float64) * w.dt_s,
                         err[: last + 1],
                         np.where(np.isfinite(all_seps), all_seps, np.nan)[: last + 1])
-    accepted = [s for s in ph.swaps if s.get("accepted")]
+    accepted = [s for s in ph.swaps if s.get("accepted") and (
+        "old_brain_id" not in s or s.get("old_brain_id") != s.get("brain_id"))]
+    unchanged = sum(1 for s in ph.swaps if s.get("accepted")) - len(accepted)
     return PhaseReport(
         index=ph.index, pattern=ph.name, n_robots=n0, start_step=ph.start_step, end_step=end,
         complete=complete or formed, formed=formed, steps=n_steps, lower_bound_steps=lb_steps,
@@ -1005,7 +1010,8 @@ def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool
         min_separation_m=_r(min_sep), final_error_m=_r(float(err[last])) if len(rows) else None,
         deadline_misses=ph.deadline_misses, commands_missing=missing,
         safety_interventions=interventions, brains=dict(brains),
-        swaps_accepted=len(accepted), swaps_refused=len(ph.swaps) - len(accepted),
+        swaps_accepted=len(accepted), swaps_refused=len(ph.swaps) - len(accepted) - unchanged,
+        swaps_unchanged=unchanged,
         swapped_to=sorted({str(s.get("brain", "")) for s in accepted}),
         joined=ph.joined, lost=ph.lost,
         world=dict(we) if we is not None else None, mismatches=mism,

@@ -270,6 +270,8 @@ def write_synthetic(path: Path, events: bool = True, chunk_size: int = 64 * 1024
                    steps=11 if wrong_steps else 10, start_step=0, end_step=10)
                 ev("brain_swap", 10, robot=0, brain="b.onnx", accepted=True, reason="ok")
                 ev("brain_swap", 10, robot=1, brain="b.onnx", accepted=False, reason="shape")
+                ev("brain_swap", 10, robot=2, brain="b.onnx", brain_id="b", old_brain_id="b",
+                   accepted=True, reason="already running")
                 pattern(2, "circle", circle3, 10, "phase")
                 ev("phase_start", 10, phase=1, pattern="circle", n=3)
             if step == 12:
@@ -366,7 +368,7 @@ def test_report_matches_independent_figures(tmp_path: Path, events: bool) -> Non
         assert (circle.joined, circle.lost) == ([3], [2])
         assert (line.joined, line.lost) == ([], [])
         assert circle.deadline_misses == 1 and line.deadline_misses == 0
-        assert (circle.swaps_accepted, circle.swaps_refused) == (1, 1)
+        assert (circle.swaps_accepted, circle.swaps_refused, circle.swaps_unchanged) == (1, 1, 1)
         assert circle.swapped_to == ["b.onnx"]
         assert line.mismatches == [] and circle.mismatches == []
         assert rep.outcome == "done" and rep.mode == "lockstep"
