@@ -155,8 +155,15 @@ def test_recorder_round_trip(tmp_path: Path) -> None:
         rec.write_wire("patternrl/s/pattern", wire.encode(pat))
         rec.write_wire("patternrl/s/something/else", b"\x00raw")
         rec.event("join", 0, 0.0, robot=2, x=1.5, y=2.5)
-        rec.metrics({"step": 7, "time_s": 0.7, "n_live": 3, "formation_error_m": 0.5,
-                     "min_separation_m": 0.4})
+        rec.metrics(
+            {
+                "step": 7,
+                "time_s": 0.7,
+                "n_live": 3,
+                "formation_error_m": 0.5,
+                "min_separation_m": 0.4,
+            }
+        )
         rec.scene(scene_update(10**9 + 5, [(2, 1.5, 2.5)], np.zeros((2, 2)), [4], 10.0))
 
     # any reader: the finished file has its summary
@@ -179,8 +186,9 @@ def test_recorder_round_trip(tmp_path: Path) -> None:
     assert run.poses[7][2] == pose
     assert run.commands == 1
     assert run.patterns == [pat]
-    assert run.events == [{"kind": "join", "step": 0, "time_s": 0.0, "robot": 2, "x": 1.5,
-                           "y": 2.5}]
+    assert run.events == [
+        {"kind": "join", "step": 0, "time_s": 0.0, "robot": 2, "x": 1.5, "y": 2.5}
+    ]
     assert run.metrics[0]["formation_error_m"] == 0.5
     raw = [m for m in iter_log(path) if m.topic == "patternrl/s/something/else"]
     assert raw[0].data == b"\x00raw" and raw[0].schema == ""
@@ -219,8 +227,13 @@ _WRITER = textwrap.dedent(
 def test_sigkilled_writer_leaves_a_readable_log(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)], stdout=subprocess.PIPE,
-                            text=True, env=env, cwd=ROOT)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _WRITER, str(path)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
     try:
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "flushed"  # waits for the writer, no sleep
