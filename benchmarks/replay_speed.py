@@ -19,7 +19,10 @@ Rows, each the median of ``--repeats`` runs over the same file:
 * ``read_log``: reading and decoding (poses, commands, events, metrics columns);
 * ``read_log + analyse``: the whole report, every figure recomputed, the goal row;
 * ``of which lower bounds``: the part of that spent in ``runtime.formation.lower_bounds``
-  (one call per phase, independent of the message count).
+  (one call per phase, independent of the message count), from the same runs.
+
+``x mcap`` is each row's speed over mcap's reader in the same run: the figure to
+compare across machines and load (the issue quotes that reader at 248 k/s).
 
 Usage: ``python benchmarks/replay_speed.py [--steps 10000] [--robots 20] [--json]``
 """
@@ -41,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime import keys
-from runtime.formation import assign_slots, centred, lower_bounds
+from runtime.formation import assign_slots, centred
 from runtime.messages import (
     Command,
     PatternMsg,
@@ -126,21 +129,14 @@ def write_log(path: Path, steps: int, n: int, phase_steps: int, seed: int = 0) -
         return rec.messages_written
 
 
-def _lower_bounds(frames: analysis.Frames, report: analysis.RunReport) -> None:
-    """The analysis's lower-bound calls alone: one per phase, on its first poses."""
-    w = report.world
-    for ph, pats in zip(report.phases, report.phase_patterns, strict=True):
-        row = frames.row(ph.start_step)
-        cols = np.nonzero(frames.present[row])[0]
-        lower_bounds(frames.xy[row][cols], pats[0].points, w.v_max_mps, w.dt_s)
-
-
 @dataclass(frozen=True)
 class Row:
     what: str
     seconds: float
     messages: int
     msgs_per_s: float
+    x_mcap: float
+    """speed relative to mcap's own reader in the same run"""
 
 
 def _median_time(fn: Callable[[], object], repeats: int) -> float:
@@ -182,22 +178,24 @@ def main(argv: list[str] | None = None) -> int:
             for _ in analysis.iter_messages(path):
                 pass
 
+        lb_runs: list[float] = []
+
         def full() -> None:
-            analysis.analyse(analysis.read_log(path))
+            rep = analysis.analyse(analysis.read_log(path))
+            lb_runs.append(rep.timing["lower_bounds_s"])
 
         data = analysis.read_log(path)  # warm-up, and the facts
         report = analysis.analyse(data)
         assert report.messages == total, (report.messages, total)
-        rows = []
+        times = {}
         for what, fn in (("mcap NonSeekingReader", mcap_only),
                          ("analysis.iter_messages", reader_only),
                          ("read_log", lambda: analysis.read_log(path)),
                          ("read_log + analyse", full)):
-            s = _median_time(fn, args.repeats)
-            rows.append(Row(what, s, total, total / s))
-        lb_s = _median_time(lambda: _lower_bounds(data.frames, report), args.repeats)
-        rows.append(Row(f"of which lower bounds ({len(report.phases)} phases)", lb_s, total,
-                        total / lb_s if lb_s else float("inf")))
+            times[what] = _median_time(fn, args.repeats)
+        times[f"of which lower bounds ({len(report.phases)} phases)"] = statistics.median(lb_runs)
+        ref = times["mcap NonSeekingReader"]
+        rows = [Row(what, s, total, total / s, ref / s) for what, s in times.items()]
         size = path.stat().st_size
     goal_row = rows[3]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -206,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         "messages": total, "file_bytes": size, "write_s": round(write_s, 3),
         "repeats": args.repeats, "cpus": os.cpu_count(), "load_1min": round(load, 2),
         "goal_msgs_per_s": GOAL_MSGS_PER_S, "goal_met": goal_row.msgs_per_s >= GOAL_MSGS_PER_S,
-        "rows": [asdict(r) | {"msgs_per_s": round(r.msgs_per_s)} for r in rows],
+        "rows": [asdict(r) | {"msgs_per_s": round(r.msgs_per_s), "x_mcap": round(r.x_mcap, 2)}
+                 for r in rows],
     }
     if args.json:
         print(json.dumps(out, indent=2))
@@ -215,11 +214,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"replay speed: {args.steps} steps x {args.robots} robots, {len(report.phases)} phases, "
           f"{total} messages, {size / 1e6:.1f} MB ({made})")
     print(f"median of {args.repeats}; {os.cpu_count()} CPUs, 1-min load average {load:.2f}")
-    hdr = f"{'what':<36} {'seconds':>8} {'messages/s':>12}"
+    hdr = f"{'what':<36} {'seconds':>8} {'messages/s':>12} {'x mcap':>7}"
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
-        print(f"{r.what:<36} {r.seconds:>8.3f} {r.msgs_per_s:>12,.0f}")
+        if r.what.startswith("of which"):
+            share = r.seconds / rows[3].seconds
+            print(f"{r.what:<36} {r.seconds:>8.3f} {f'({share:.0%} of the row above)':>20}")
+        else:
+            print(f"{r.what:<36} {r.seconds:>8.3f} {r.msgs_per_s:>12,.0f} {r.x_mcap:>7.2f}")
     verdict = "met" if out["goal_met"] else "NOT met"
     print(f"goal >= {GOAL_MSGS_PER_S:,.0f} messages/s read and analysed: {verdict}")
     return 0

@@ -82,6 +82,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+import time
 import zlib
 from collections import Counter, defaultdict
 from collections.abc import Iterator
@@ -798,6 +799,8 @@ class RunReport:
     world: WorldConfig
     phase_patterns: list[list[PhasePattern]] = field(default_factory=list)
     """Each phase's patterns (its first and its resizes), for pictures; not in the JSON."""
+    timing: dict[str, float] = field(default_factory=dict)
+    """Seconds spent on the phases: ``phases_s`` in all, ``lower_bounds_s`` of it (not in JSON)."""
 
     def pattern_at(self, phase: int, step: int) -> Array | None:
         """The pattern in force in ``phase`` at ``step``."""
@@ -904,8 +907,8 @@ def _pattern_rows(ph: _PhaseLog, steps: IntArray) -> IntArray:
     return out
 
 
-def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool
-                  ) -> tuple[PhaseReport, StepSeries]:
+def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool,
+                  timing: dict[str, float]) -> tuple[PhaseReport, StepSeries]:
     fr, w = data.frames, data.world
     lo = int(np.searchsorted(fr.steps, ph.start_step))
     hi = int(np.searchsorted(fr.steps, end_step, side="right"))
@@ -958,7 +961,10 @@ def _phase_report(data: LogData, ph: _PhaseLog, end_step: int, complete: bool
         n0 = len(cols)
         C0 = ph.patterns[0].points
         if n0 == len(C0) and n0 >= 2:
+            t_lb = time.perf_counter()
             lbt, lbs = lower_bounds(fr.xy[rows[0]][cols], C0, w.v_max_mps, w.dt_s)
+            timing["lower_bounds_s"] = timing.get("lower_bounds_s", 0.0) + (
+                time.perf_counter() - t_lb)
             lb_steps, lb_travel = int(lbs), round(float(lbt), 6)
     elif len(ph.patterns[0].points):
         n0 = len(ph.patterns[0].points)
@@ -1029,6 +1035,8 @@ def analyse(data: LogData) -> RunReport:
     S = len(fr.steps)
     reports = []
     series = []
+    timing: dict[str, float] = {"lower_bounds_s": 0.0}
+    t0 = time.perf_counter()
     for k, ph in enumerate(phases):
         if ph.end_step is not None:
             end, complete = ph.end_step, True
@@ -1037,7 +1045,7 @@ def analyse(data: LogData) -> RunReport:
         else:
             end = int(run_end[0].get("steps", last_step or 0)) if run_end else (last_step or 0)
             complete = bool(run_end)
-        rep, ser = _phase_report(data, ph, max(end, ph.start_step), complete)
+        rep, ser = _phase_report(data, ph, max(end, ph.start_step), complete, timing)
         reports.append(rep)
         series.append(ser)
     start = data.events_of("run_start")
@@ -1056,6 +1064,7 @@ def analyse(data: LogData) -> RunReport:
         mode=mode, outcome=outcome, malformed=data.malformed + world_malformed,
         topics=data.topics, phases=reports,
         series=series, world=data.world, phase_patterns=[ph.patterns for ph in phases],
+        timing={**timing, "phases_s": time.perf_counter() - t0},
     )
 
 
