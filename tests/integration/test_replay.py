@@ -638,3 +638,31 @@ def test_play_back_stops_cleanly_on_ctrl_c(tmp_path: Path, listener: Any) -> Non
             proc.communicate()
     assert proc.returncode == 130, err
     assert "stopped: played" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(("compression", "chunked"), [("none", True), ("lz4", True),
+                                                      ("zstd", False)])
+def test_reader_handles_other_writers_settings(tmp_path: Path, compression: str,
+                                               chunked: bool) -> None:
+    """Uncompressed and lz4 chunks, and a chunkless file, read like mcap's own reader reads."""
+    from mcap.writer import CompressionType, Writer
+
+    src, log = tmp_path / "src.mcap", tmp_path / "other.mcap"
+    write_synthetic(src)
+    with open(log, "wb") as f:
+        w = Writer(f, chunk_size=700, compression=CompressionType[compression.upper()],
+                   use_chunking=chunked)
+        w.start()
+        ids: dict[int, int] = {}
+        for ch, t, pt, seq, payload in analysis.iter_messages(src):
+            if ch.id not in ids:
+                sid = w.register_schema(ch.schema_name, ch.schema_encoding, ch.schema_data) \
+                    if ch.schema_id else 0
+                ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, ch.metadata)
+            w.add_message(ids[ch.id], t, payload, pt, seq)
+        w.finish()
+    theirs, complete = _mcap_reads(log)
+    ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in analysis.iter_messages(log)]
+    assert complete and ours == theirs and len(ours) == sum(1 for _ in analysis.iter_messages(src))
+    a, b = analysis.report_log(src), analysis.report_log(log)
+    assert b.finished and [asdict(p) for p in a.phases] == [asdict(p) for p in b.phases]
