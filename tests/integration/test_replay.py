@@ -660,7 +660,7 @@ def test_reader_handles_other_writers_settings(tmp_path: Path, compression: str,
                     if ch.schema_id else 0
                 ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding, sid, ch.metadata)
             w.add_message(ids[ch.id], t, payload, pt, seq)
-        w.finish()
+        w.finish()  # type: ignore[no-untyped-call]
     theirs, complete = _mcap_reads(log)
     ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in analysis.iter_messages(log)]
     assert complete and ours == theirs and len(ours) == sum(1 for _ in analysis.iter_messages(src))
