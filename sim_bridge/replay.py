@@ -258,7 +258,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--repair", type=Path, metavar="OUT.mcap",
                    help="write every recovered message into a finished, indexed MCAP file")
     g = p.add_argument_group("play-back (republish on Zenoh, like ros2 bag play)")
-    g.add_argument("--play", action="store_true", help="republish the recorded wire messages")
+    g.add_argument("--play", action="store_true",
+                   help="republish the recorded wire messages with their recorded timing, in "
+                        "the world's place: listens on the swarm's world endpoint (where robots "
+                        "and viewers connect) unless --connect/--listen say otherwise")
     g.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
     g.add_argument("--loop", type=int, nargs="?", const=0, default=1, metavar="N",
                    help="play N times; without N until Ctrl-C (default: once)")
