@@ -194,17 +194,25 @@ def _bottleneck_assignment(dist: Array) -> IntArray:
 
 
 def _weiszfeld(d: Array, t: Array, iters: int = 200) -> Array:
-    """Translation t minimising sum ||d_i - t|| (geometric median of d)."""
+    """Translation t minimising sum ||d_i - t|| (geometric median of d).
+
+    Weiszfeld's iteration converges slowly when the median sits on a data point
+    (common for small n), so the data points are candidates too.
+    """
     t = np.asarray(t, dtype=np.float64)
     for _ in range(iters):
         r = np.linalg.norm(d - t, axis=1)
         r = np.maximum(r, 1e-12)
         w = 1.0 / r
         t_new: Array = (d * w[:, None]).sum(0) / w.sum()
-        if np.linalg.norm(t_new - t) < 1e-10:
-            return t_new
+        if np.linalg.norm(t_new - t) < 1e-9:
+            t = t_new
+            break
         t = t_new
-    return t
+    cands = np.vstack([t[None, :], d])
+    cost = np.linalg.norm(d[None, :, :] - cands[:, None, :], axis=-1).sum(1)
+    out: Array = cands[int(np.argmin(cost))]
+    return out
 
 
 def lower_bound_travel(P: Array, C: Array) -> float:
@@ -223,18 +231,25 @@ def lower_bound_travel(P: Array, C: Array) -> float:
     d0 = Pc - Cc[assign_slots(Pc, Cc)]
     starts = [Pc.mean(0) - Cc.mean(0), *d0[: min(len(d0), 8)]]
     best = math.inf
+    seen: dict[bytes, float] = {}  # assignment -> its optimal travel: starts often converge
     for t in starts:
         prev = math.inf
         for _ in range(20):
             dist = np.linalg.norm(Pc[:, None, :] - Cc[None, :, :] - t, axis=-1)
             _, cols = linear_sum_assignment(dist)
+            key = cols.tobytes()
+            if key in seen:
+                prev = min(prev, seen[key])
+                break
             d = Pc - Cc[cols]
             t = _weiszfeld(d, t)
             val = float(np.linalg.norm(d - t, axis=1).sum())
+            seen[key] = val
             if val >= prev - 1e-12:
+                prev = min(prev, val)
                 break
             prev = val
-        best = min(best, prev, val)
+        best = min(best, prev)
     return best
 
 
