@@ -163,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
     manifest = BrainManifest(
         observation=spec,
         action={"kind": "cartesian", "v_max_mps": world.v_max_mps, "dt_s": world.dt_s},
-        pattern=patterns[-1],
+        # a brain trained on random shapes is meant for any pattern
+        pattern=None if patterns[-1] == "random" else patterns[-1],
         n_robots=cfg.n_robots,
         world=dataclasses.asdict(world),
         training={
