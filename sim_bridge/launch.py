@@ -2,10 +2,15 @@
 
 What it does:
 
-1. picks the brains: ``--brains auto`` (default) uses ``exports/`` when it has a
-   brain for every pattern of ``--patterns`` (a general one preferred, see
-   ``--brain-kind``), else ``rule:assign``; ``--brains DIR`` or ``rule:assign``
-   choose explicitly. The table says which brain ran each pattern;
+1. picks the brains: ``--brains auto`` (default) runs the general brain
+   ``exports/general.onnx`` when it is there: one brain for every pattern and
+   team size, so no swap at pattern changes, and robots that leave or join are
+   followed (the world resizes the pattern). Without it (or with
+   ``--brain-kind paper``), ``exports/`` when it has a brain for every pattern of
+   ``--patterns`` (of the ``--brain-kind`` preferred), else ``rule:assign``.
+   ``--brains DIR`` (e.g. ``--brains exports --brain-kind paper``: the paper
+   brains, one per pattern), ``--brains FILE.onnx`` or ``--brains rule:assign``
+   choose explicitly. The first line and the table say which brain ran each pattern;
 2. opens the world's Zenoh session in peer mode, listening on a free loopback
    port, and starts ``--robots`` robot processes (``patternrl robot``) that connect
    to it, each with the first pattern's brain; at every pattern change the world
@@ -59,11 +64,14 @@ from sim_bridge.sim import (
     brains_from_arg,
     choose_brains,
     config_from_args,
+    file_choice,
     result_dict,
     rule_choice,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
+GENERAL_BRAIN = "general.onnx"
+"""The shipped general brain's file name in a brains directory: the default brain."""
 STOP_GRACE_S = 3.0
 ROBOT_SILENCE_EXIT_S = 20.0
 
@@ -73,8 +81,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_world_arguments(p, "the MCAP log (default runs/demo.mcap); the figure and the robots' "
                            "log go beside it")
     p.add_argument("--brains", default="auto",
-                   help="auto (exports/ if it has a brain for every pattern, else rule:assign), "
-                        "a directory of brains, or rule:assign")
+                   help="auto (exports/general.onnx for every pattern; without it exports/ if "
+                        "it has a brain for every pattern, else rule:assign), a directory of "
+                        "brains (with --brain-kind paper: the paper brains), a brain file "
+                        "(.onnx), or rule:assign")
     p.add_argument("--safety", choices=("orca", "off"), default="orca",
                    help="the robots' safety filter (default orca)")
     p.add_argument("--start-timeout-s", type=float, default=60.0,
@@ -88,22 +98,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 # ------------------------------------------------------------------------ brains
 
 
-def pick_brains(value: str, patterns: list[str], n: int, prefer: str
+def brain_dirs() -> tuple[Path, ...]:
+    """Where ``--brains auto`` looks: ``exports/`` here, then the project's."""
+    return (Path("exports"), ROOT / "exports")
+
+
+def pick_brains(value: str, patterns: list[str], n: int, prefer: str,
+                search: tuple[Path, ...] | None = None
                 ) -> tuple[dict[str, BrainChoice], str]:
-    """(brain per pattern, a line saying where they came from)."""
+    """(brain per pattern, a line saying where they came from).
+
+    ``auto``: the general brain (``<dir>/general.onnx``) for every pattern when one
+    of ``search`` (default :func:`brain_dirs`) has it and ``prefer`` is ``general``;
+    else the first of them with a brain for every pattern; else ``rule:assign``.
+    """
     if value != "auto":
         chosen = brains_from_arg(value, patterns, n, prefer)
         assert chosen is not None  # "none" is not offered by the launcher
         return chosen, f"brains: {value}"
-    for d in (Path("exports"), ROOT / "exports"):
+    dirs = brain_dirs() if search is None else search
+    note = ""
+    if prefer == "general":
+        for d in dirs:
+            g = d / GENERAL_BRAIN
+            if not g.is_file():
+                continue
+            try:
+                choice = file_choice(g, n)
+            except InputError as e:
+                note = f"; {e}"
+                break
+            return ({p: choice for p in patterns},
+                    f"brains: {choice.label} from {d}, the general brain, for every pattern")
+    for d in dirs:
         if d.is_dir():
             chosen, missing = choose_brains(d, patterns, n, prefer)
             if not missing:
-                return chosen, f"brains: {d} (a brain for every pattern)"
+                return chosen, f"brains: {d} (a brain for every pattern){note}"
             if chosen:
                 return ({p: rule_choice() for p in patterns},
-                        f"brains: {RULE_ASSIGN} ({d} has none for {', '.join(missing)})")
-    return {p: rule_choice() for p in patterns}, f"brains: {RULE_ASSIGN} (no trained brains found)"
+                        f"brains: {RULE_ASSIGN} ({d} has none for {', '.join(missing)}){note}")
+    return ({p: rule_choice() for p in patterns},
+            f"brains: {RULE_ASSIGN} (no trained brains found){note}")
 
 
 # ------------------------------------------------------------------------ robots

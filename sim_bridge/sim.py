@@ -35,7 +35,9 @@ pattern is then resized to the live count (a new pattern version), which general
 and rule brains follow; a paper brain knows one team size and cannot.
 
 Brains (``--brains``): ``none`` leaves the robots' brains alone; ``rule:assign``
-or a directory of brains (``<stem>.onnx`` + ``<stem>.json`` manifests) makes the
+or one brain file (``.onnx``, e.g. ``exports/general.onnx``) runs that brain for
+every pattern (swapped in once, before the first, where a robot runs another);
+a directory of brains (``<stem>.onnx`` + ``<stem>.json`` manifests) makes the
 world choose a brain per pattern (by the manifest's ``pattern``, ``observation``
 and ``n_robots``; ``--brain-kind`` says which observation to prefer) and, at
 every pattern change, swap it into each robot that runs another one, through the
@@ -811,8 +813,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--swarm", default="demo", help="swarm name ([A-Za-z0-9_-]+, default demo)")
     add_world_arguments(p)
     p.add_argument("--brains", default="none",
-                   help="none (robots keep theirs), rule:assign, or a directory of brains: the "
-                        "world swaps each pattern's brain in at every pattern change")
+                   help="none (robots keep theirs), rule:assign, a brain file (.onnx: one brain "
+                        "for every pattern), or a directory of brains: the world swaps each "
+                        "pattern's brain in at every pattern change")
     p.add_argument("--wait-robots-s", type=float, default=30.0,
                    help="start when --robots are alive, or after this long with >= 2")
     add_zenoh_arguments(p)
@@ -847,9 +850,30 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
     )
 
 
+def file_choice(path: str | Path, n_robots: int) -> BrainChoice:
+    """One brain file (``.onnx``, manifest beside it or inside) as a choice for any pattern.
+
+    Raises :class:`InputError` when the file or its manifest cannot be read, or when
+    its observation cannot drive ``n_robots`` (a paper brain made for another n).
+    """
+    from runtime.swap import read_brain
+
+    try:
+        manifest_json, _, brain_id = read_brain(str(path))
+        m = BrainManifest.from_json(manifest_json)
+    except BrainError as e:
+        raise InputError(f"--brains {path}: {e}") from None
+    if not m.observation.accepts_team(n_robots):
+        raise InputError(f"--brains {path}: the brain reads the '{m.observation.name}' "
+                         f"observation of {m.observation.n_robots} robots, not {n_robots}")
+    name = Path(path).name
+    return BrainChoice(str(path), brain_id, m.observation.name, f"{name} ({brain_id[:8]})")
+
+
 def brains_from_arg(value: str, patterns: list[str], n: int, prefer: str
                     ) -> dict[str, BrainChoice] | None:
-    """``none`` -> None; ``rule:...`` -> that rule for every pattern; a directory -> scan it."""
+    """``none`` -> None; ``rule:...`` -> that rule for every pattern; a brain file (``.onnx``)
+    -> that brain for every pattern; a directory -> scan it."""
     if value == "none":
         return None
     if value.startswith("rule:"):
@@ -857,8 +881,12 @@ def brains_from_arg(value: str, patterns: list[str], n: int, prefer: str
             raise InputError(f"unknown rule brain '{value}' (known: {RULE_ASSIGN})")
         return {p: rule_choice(value) for p in patterns}
     d = Path(value)
+    if d.is_file():
+        choice = file_choice(d, n)
+        return {p: choice for p in patterns}
     if not d.is_dir():
-        raise InputError(f"--brains {value}: not a directory, 'rule:assign' or 'none'")
+        raise InputError(f"--brains {value}: not a directory, a brain file, 'rule:assign' "
+                         "or 'none'")
     chosen, missing = choose_brains(d, patterns, n, prefer)
     if missing:
         raise InputError(f"--brains {value} has no brain for {', '.join(missing)} with {n} robots")
