@@ -20,7 +20,15 @@ steps_ratio         mean over formed episodes of steps / lower-bound steps
 travel_ratio        mean over formed episodes of travel / lower-bound travel
 formation_error     mean final formation error (m)
 safety_interventions fraction of robot-steps where the filter changed the command
+min_separation_m    closest approach of two robot centres along the commanded
+                    straight moves, over all steps and episodes (m; below 2R is
+                    a collision: the world's contact model then pushes the
+                    discs apart, so the positions themselves never show it)
 =================== ==============================================================
+
+``EvalResult.episode_stats`` keeps the per-episode numbers (formed, steps,
+travel, both lower bounds, collisions, min separation) for paired comparisons
+of brains on the same seeds; ``--json`` leaves them out.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +46,7 @@ import numpy as np
 
 from runtime.brain import Brain, BrainError, load_brain
 from runtime.controller import decide_batch
+from runtime.formation import swept_pair_distance
 from runtime.patterns import PatternError, make_pattern, pattern_label
 from runtime.safety import OrcaParams
 from runtime.world import DEFAULT_WORLD, WorldConfig
@@ -66,11 +75,16 @@ class EvalResult:
     mean_steps: float
     safety_interventions: float
     wall_s: float
+    min_separation_m: float = math.nan
+    episode_stats: dict[str, list[float]] = field(default_factory=dict, repr=False)
+    """Per episode (index e = env e): formed, steps, travel_m, lower_bound_steps,
+    lower_bound_travel_m, collisions, min_separation_m."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
             k: (None if isinstance(v, float) and math.isnan(v) else v)
             for k, v in asdict(self).items()
+            if k != "episode_stats"
         }
 
     def manifest_block(self) -> dict[str, Any]:
@@ -130,6 +144,8 @@ def evaluate_brain(
     lb_travel = np.ones(E)
     collisions = np.zeros(E, np.int64)
     error = np.zeros(E)
+    min_sep = np.full(E, np.inf)
+    dt = world.dt_s
     changed_steps = 0
     robot_steps = 0
     prev_slots = bw.slots.copy()
@@ -142,6 +158,9 @@ def evaluate_brain(
                 brain, bw.frames[live], bw.pattern[live], prev_slots[live], safety, world
             )
             vel[live] = v
+            p0 = bw.frames[live, 0]
+            swept = swept_pair_distance(p0, p0 + dt * v)  # the moves as commanded
+            min_sep[live] = np.minimum(min_sep[live], swept.min(axis=(1, 2)))
             prev_slots[live] = slots
             changed_steps += int(changed.sum())
             robot_steps += changed.size
@@ -183,6 +202,16 @@ def evaluate_brain(
         mean_steps=float(steps[formed].mean()) if formed.any() else math.nan,
         safety_interventions=changed_steps / max(robot_steps, 1),
         wall_s=time.perf_counter() - t0,
+        min_separation_m=float(min_sep.min()),
+        episode_stats={
+            "formed": formed.astype(float).tolist(),
+            "steps": steps.tolist(),
+            "travel_m": travel.tolist(),
+            "lower_bound_steps": lb_steps.tolist(),
+            "lower_bound_travel_m": lb_travel.tolist(),
+            "collisions": collisions.astype(float).tolist(),
+            "min_separation_m": min_sep.tolist(),
+        },
     )
 
 
@@ -211,6 +240,7 @@ def format_table(r: EvalResult) -> str:
         ("steps", f"{ratio(r.steps_ratio)} the lower bound (mean {r.mean_steps:.1f})"),
         ("travel", f"{ratio(r.travel_ratio)} the lower bound"),
         ("formation error", f"{r.formation_error:.4f} m (mean final)"),
+        ("min separation", f"{r.min_separation_m:.4f} m (closest commanded approach)"),
         ("filter changed", pct(r.safety_interventions) + " of robot-steps"),
         ("wall time", f"{r.wall_s:.1f} s"),
     ]
@@ -238,6 +268,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="orca",
         help="the robot's ORCA filter (default) or the raw brain",
     )
+    p.add_argument(
+        "--orca-time-horizon-s",
+        type=float,
+        default=OrcaParams().time_horizon_s,
+        help=f"ORCA's time horizon (default {OrcaParams().time_horizon_s}, as on a robot)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -264,6 +300,9 @@ def run(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         print("patternrl eval: --episodes must be >= 1", file=sys.stderr)
         return 2
+    if not (math.isfinite(args.orca_time_horizon_s) and args.orca_time_horizon_s > 0):
+        print("patternrl eval: --orca-time-horizon-s must be > 0", file=sys.stderr)
+        return 2
     try:
         make_pattern(pattern, n)
     except PatternError as e:
@@ -275,7 +314,9 @@ def run(args: argparse.Namespace) -> int:
         n,
         args.episodes,
         seed=args.seed,
-        safety=OrcaParams() if args.safety == "orca" else None,
+        safety=OrcaParams(time_horizon_s=args.orca_time_horizon_s)
+        if args.safety == "orca"
+        else None,
         progress=False if args.no_progress else None,
         label=Path(args.brain).stem,
     )
