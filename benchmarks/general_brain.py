@@ -23,7 +23,9 @@ rule raw       ``rule:assign`` alone
 
 Figures per case (as ``patternrl eval`` reports them): success (formed within
 the step limit with no collision), colliding pairs summed over the episodes,
-steps and travel as ratios to the lower bounds (mean over formed episodes). The
+steps and travel as ratios to the lower bounds (mean over formed episodes), the
+closest approach of two centres along the commanded moves (below 2R = 0.2 m is a
+collision) and how often the filter changed a command. The
 goals (DESIGN.md section 5): success >= 99 %, zero collisions, steps <= 1.20x,
 travel <= 1.10x; each row says ``pass`` or which goals it missed, with the true
 figures. The summary pools every case of a brain (success and collisions over
@@ -155,6 +157,8 @@ class Case:
     mean_steps: float | None
     safety_interventions: float
     wall_s: float
+    min_separation_m: float | None = None
+    """Closest approach of two centres along the commanded moves (below 2R: a collision)."""
     misses: list[str] = field(default_factory=list)
 
     @property
@@ -189,6 +193,7 @@ def run_case(config: str, brain: Brain, orca: bool, pattern: str, label: str, n:
     steps, travel = _nan_none(r.steps_ratio), _nan_none(r.travel_ratio)
     return Case(config, label, n, episodes, seed, r.success_rate, r.formed_rate, r.collisions,
                 steps, travel, _nan_none(r.mean_steps), r.safety_interventions, r.wall_s,
+                _nan_none(float(getattr(r, "min_separation_m", math.nan))),
                 judge(r.success_rate, r.collisions, steps, travel))
 
 
@@ -217,6 +222,8 @@ def summarise(cases: list[Case]) -> list[dict[str, Any]]:
             "worst_travel_ratio": max((c.travel_ratio for c in mine
                                        if c.travel_ratio is not None), default=None),
             "lowest_success_rate": min(c.success_rate for c in mine),
+            "min_separation_m": min((c.min_separation_m for c in mine
+                                     if c.min_separation_m is not None), default=None),
             "wall_s": sum(c.wall_s for c in mine),
             "misses": judge(success, collisions, steps, travel),
         })
@@ -401,25 +408,27 @@ def _table(head: list[str], rows: list[list[str]], left: set[int]) -> str:
 
 def format_cases(cases: list[Case]) -> str:
     head = ["brain", "pattern", "n", "episodes", "success", "collisions", "steps", "travel",
-            "mean steps", "filter changed", "goals"]
+            "mean steps", "min sep m", "filter changed", "goals"]
     rows = [[c.config, c.pattern, str(c.n), str(c.episodes), _pct(c.success_rate),
              str(c.collisions), _x(c.steps_ratio), _x(c.travel_ratio),
              "-" if c.mean_steps is None else f"{c.mean_steps:.1f}",
+             "-" if c.min_separation_m is None else f"{c.min_separation_m:.3f}",
              _pct(c.safety_interventions),
              "pass" if c.passed else "miss: " + ", ".join(c.misses)] for c in cases]
-    return _table(head, rows, {0, 1, 10})
+    return _table(head, rows, {0, 1, 11})
 
 
 def format_summary(summary: list[dict[str, Any]]) -> str:
     head = ["brain", "cases passed", "episodes", "success", "lowest", "collisions",
-            "steps", "worst", "travel", "worst", "goals"]
+            "min sep m", "steps", "worst", "travel", "worst", "goals"]
     rows = [[s["config"], f"{s['cases_passed']}/{s['cases']}", str(s["episodes"]),
              _pct(s["success_rate"]), _pct(s["lowest_success_rate"]), str(s["collisions"]),
+             "-" if s["min_separation_m"] is None else f"{s['min_separation_m']:.3f}",
              _x(s["steps_ratio"]), _x(s["worst_steps_ratio"]), _x(s["travel_ratio"]),
              _x(s["worst_travel_ratio"]),
              "pass" if not s["misses"] else "miss: " + ", ".join(s["misses"])]
             for s in summary]
-    return _table(head, rows, {0, 10})
+    return _table(head, rows, {0, 11})
 
 
 def format_dropout(d: dict[str, Any]) -> str:
@@ -478,9 +487,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="pattern files and the dropout log (default runs/general_brain)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args(argv)
-    if args.quick:
-        args.patterns, args.sizes, args.episodes, args.episodes_50 = (
-            "circle,cross,star,spiral", "7,13", 4, 2)
+    if args.quick:  # smaller defaults; what is given explicitly stays
+        for name, full, quick in [("patterns", ",".join(BUILTINS + HANDMADE),
+                                   "circle,cross,star,spiral"),
+                                  ("sizes", ",".join(map(str, SIZES)), "7,13"),
+                                  ("episodes", 20, 4), ("episodes_50", 10, 2)]:
+            if getattr(args, name) == full:
+                setattr(args, name, quick)
     brain_path = Path(args.brain)
     if not brain_path.is_file():
         print(f"general_brain: no brain at {brain_path} (scripts/train_shipped.sh any makes it)",
