@@ -349,13 +349,18 @@ def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...
             launcher.wait()
     wall = time.monotonic() - t0
     rep = report_log(log)
-    leaves = [e for e in _events(log) if e.get("kind") == "leave"]
+    events = _events(log)
+    leaves = [e for e in events if e.get("kind") == "leave"]
+    resizes = [{"step": e["step"], "pattern": e["name"], "n": e["n"]} for e in events
+               if e.get("kind") == "pattern" and e.get("reason") == "resize"]
+    swaps = [e for e in events if e.get("kind") == "brain_swap"]
     phases = []
     for ph in rep.phases:
         n_end = ph.n_robots - len(ph.lost) + len(ph.joined)
         phases.append({
             "pattern": ph.pattern, "robots_at_start": ph.n_robots, "robots_at_end": n_end,
             "lost": ph.lost, "formed": ph.formed, "steps": ph.steps,
+            "start_step": ph.start_step, "end_step": ph.end_step,
             "lower_bound_steps": ph.lower_bound_steps, "steps_ratio": ph.steps_ratio,
             "travel_ratio": ph.travel_ratio, "collisions": ph.collisions,
             "min_separation_m": ph.min_separation_m, "final_error_m": ph.final_error_m,
@@ -371,8 +376,14 @@ def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...
         "watcher_step_at_kill": step_at_kill,
         "leave_events": [{"robot": e["robot"], "step": e["step"], "n_live": e["n_live"]}
                          for e in leaves],
+        "resizes": resizes,
+        "swaps": {"sent": len(swaps),
+                  "changed_brain": sum(1 for e in swaps if e.get("accepted")
+                                       and e.get("old_brain_id") != e.get("brain_id"))},
         "outcome": rep.outcome, "finished": rep.finished, "phases": phases,
         "all_formed": bool(phases) and all(p["formed"] for p in phases),
+        "mid_formation": bool(phases and leaves) and all(
+            phases[0]["start_step"] <= e["step"] < phases[0]["end_step"] for e in leaves),
         "exit_code": launcher.returncode, "wall_s": round(wall, 1),
         "launcher_stderr_tail": err.decode(errors="replace").strip().splitlines()[-6:],
         "launcher_result": launch_json,
@@ -436,7 +447,11 @@ def format_dropout(d: dict[str, Any]) -> str:
              f"(SIGKILL) when the world was at step {d['watcher_step_at_kill']}; "
              f"the world logged "
              + ", ".join(f"robot {e['robot']} leaving at step {e['step']} ({e['n_live']} live)"
-                         for e in d["leave_events"])]
+                         for e in d["leave_events"])
+             + "; the world re-published "
+             + (", ".join(f"{r['pattern']} for {r['n']} robots at step {r['step']}"
+                          for r in d["resizes"]) or "no resized pattern")
+             + f"; brain swaps that changed a robot's brain: {d['swaps']['changed_brain']}"]
     head = ["pattern", "robots", "lost", "formed", "steps", "lb", "x lb", "collisions",
             "min sep m", "final err m", "misses", "brains (commands)", "swaps"]
     rows = []
@@ -452,7 +467,9 @@ def format_dropout(d: dict[str, Any]) -> str:
                      ", ".join(f"{b[:8]} x{k}" for b, k in sorted(p["brains"].items())),
                      str(p["swaps_accepted"])])
     lines.append(_table(head, rows, {0, 1, 2, 3, 11}))
-    verdict = "the robots left formed every pattern" if d["all_formed"] else "NOT formed"
+    verdict = ("the robots left formed every pattern" if d["all_formed"] else "NOT formed")
+    verdict += (", the robots were lost before the first pattern formed" if d["mid_formation"]
+                else ", the robots were NOT lost mid-formation")
     lines.append(f"{verdict}; log {d['log']} ({'finished' if d['finished'] else 'cut short'}, "
                  f"outcome {d['outcome']}), launcher exit {d['exit_code']}, {d['wall_s']} s")
     return "\n".join(lines)
