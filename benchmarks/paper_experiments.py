@@ -89,7 +89,14 @@ PAPER_TRAVEL_CLAIM = (0.375, 0.438)
 PAPER_LATENCY_MS = 1.2
 """IV.B: "the response time of generating new actions for each step takes 1.2 ms on average"."""
 FIG6_PATTERNS = ("circle", "heart", "line", "triangle")
-DEFAULT_BRAINS = ("exports/circle-10-general.onnx", "exports/general.onnx")
+DEFAULT_BRAINS = (
+    "exports/circle-10-general.onnx",
+    "exports/general.onnx",
+    "exports/circle-10-paper.onnx",
+)
+"""Learned brains of (a) when ``--brains`` is not given (those that exist): the circle
+brain on the general observation (any n), the any-pattern general brain, and the
+paper-observation circle brain (its own n only)."""
 DEFAULT_TAU = OrcaParams().time_horizon_s
 
 
@@ -559,6 +566,9 @@ def _headline(
                  f"{span_n} (positive = the learned brain needs less):")
     lines.append("")
     for stem in stems:
+        has = [n for n in ns if (n, f"{stem}-raw") in res]
+        if has != list(ns):
+            lines.append(f"- `{stem}` drives n = {', '.join(map(str, has))} only:")
         for filt in (False, True):
             for what, key in (("travel", "travel"), ("steps", "steps")):
                 parts = []
