@@ -24,13 +24,18 @@ def main() -> int:
         if m.get("format") != "patternrl-brain":
             continue
         ev, tr = m.get("evaluation") or {}, m.get("training") or {}
-        ok = ev.get("success_rate", 0) >= GOAL_SUCCESS and ev.get("collisions", 1) == 0
+        ok = (ev.get("success_rate") or 0) >= GOAL_SUCCESS and ev.get("collisions", 1) == 0
+
+        def num(key: str, ev: dict[str, float] = ev) -> str:
+            v = ev.get(key)
+            return "-" if v is None else f"{v:.2f}"
+
         rows.append(
             f"| `{m['file']}` | {m['observation']['name']} | {m.get('pattern') or 'any'} "
             f"| {tr.get('algorithm', '?')} | {tr.get('episodes', '?')} "
-            f"| {tr.get('wall_time_s', '?')} | {ev.get('success_rate', float('nan')):.2f} "
-            f"| {ev.get('collisions', '?')} | {ev.get('steps_ratio', float('nan')):.2f} "
-            f"| {ev.get('travel_ratio', float('nan')):.2f} | {'met' if ok else 'missed'} |"
+            f"| {tr.get('wall_time_s', '?')} | {num('success_rate')} "
+            f"| {ev.get('collisions', '?')} | {num('steps_ratio')} "
+            f"| {num('travel_ratio')} | {'met' if ok else 'missed'} |"
         )
     print(
         "| brain | observation | pattern | algorithm | episodes | train s | success "

@@ -25,13 +25,13 @@ from pathlib import Path
 from typing import Any
 
 from runtime.brain import BrainError, BrainManifest, load_brain
-from runtime.patterns import PatternError, make_pattern
+from runtime.patterns import PatternError
 from runtime.world import DEFAULT_WORLD
 from trainer.config import ALGOS, PAPER_LRS, TrainConfig
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
 from trainer.train import InitError, RunPlan, artefact_paths, obs_spec_for, reward_for, train
-from trainer.world import PAPER_REWARD
+from trainer.world import PAPER_REWARD, check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0
 
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(e))
     try:
         for p in patterns:
-            make_pattern(p, cfg.n_robots, DEFAULT_WORLD)
+            check_pattern(p, cfg.n_robots, DEFAULT_WORLD)
     except PatternError as e:
         return _fail(str(e))
     if args.out.suffix != ".onnx":

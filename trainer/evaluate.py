@@ -47,10 +47,10 @@ import numpy as np
 from runtime.brain import Brain, BrainError, load_brain
 from runtime.controller import decide_batch
 from runtime.formation import swept_pair_distance
-from runtime.patterns import PatternError, make_pattern, pattern_label
+from runtime.patterns import PatternError, pattern_label
 from runtime.safety import OrcaParams
 from runtime.world import DEFAULT_WORLD, WorldConfig
-from trainer.world import BatchWorld
+from trainer.world import BatchWorld, check_pattern
 
 DEFAULT_EVAL_SEED = 1_000_000
 """Training uses ``--seed`` (default 0) and selects checkpoints on ``seed + 1_000_003``."""
@@ -304,7 +304,7 @@ def run(args: argparse.Namespace) -> int:
         print("patternrl eval: --orca-time-horizon-s must be > 0", file=sys.stderr)
         return 2
     try:
-        make_pattern(pattern, n)
+        check_pattern(pattern, n)
     except PatternError as e:
         print(f"patternrl eval: {e}", file=sys.stderr)
         return 2

@@ -53,14 +53,14 @@ import numpy as np
 import torch
 
 from runtime.observation import ObservationSpec
-from runtime.patterns import make_pattern, pattern_label
+from runtime.patterns import pattern_label
 from runtime.world import DEFAULT_WORLD, WorldConfig
 from trainer.config import TrainConfig
 from trainer.export import BrainFileError, agent_from_onnx, read_manifest
 from trainer.networks import Agent, gaussian_logprob
 from trainer.storage import Rollout
 from trainer.update import Optimisers, UpdateStats, make_optimisers, update
-from trainer.world import BatchWorld, RewardConfig
+from trainer.world import BatchWorld, RewardConfig, check_pattern
 
 CURVE_FIELDS = (
     "iteration",
@@ -378,7 +378,7 @@ def train(
     world = plan.world
     spec = obs_spec_for(cfg)
     for p in plan.patterns:  # a bad pattern fails now, with its one-line message
-        make_pattern(p, cfg.n_robots, world)
+        check_pattern(p, cfg.n_robots, world)
     gen = torch.Generator().manual_seed(cfg.seed)
     files = artefact_paths(plan.out)
 

@@ -135,6 +135,12 @@ BoolArray = NDArray[np.bool_]
 F32Array = NDArray[np.float32]
 
 RANDOM_PATTERN = "random"
+
+
+def check_pattern(name: str | Path, n_robots: int, world: WorldConfig = DEFAULT_WORLD) -> None:
+    """Raise PatternError (one line) unless ``name`` is usable: a built-in, a file, or "random"."""
+    if str(name) != RANDOM_PATTERN:
+        make_pattern(name, n_robots, world)
 """Pattern name that draws a fresh random shape at every reset."""
 
 CONTACT_TOL_M = 1e-6
@@ -708,6 +714,7 @@ __all__ = [
     "EpisodeStats",
     "RewardConfig",
     "StepResult",
+    "check_pattern",
     "robot_pairs",
     "swept_contacts",
 ]
