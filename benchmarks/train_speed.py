@@ -33,6 +33,7 @@ import math
 import platform
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -190,7 +191,8 @@ def plot_fig5(
             if not ys:
                 continue
             arr = np.array(ys)
-            with np.errstate(all="ignore"):
+            with warnings.catch_warnings():  # grid points before any run's first episode
+                warnings.simplefilter("ignore", RuntimeWarning)
                 mean = np.nanmean(arr, 0)
                 lo, hi = np.nanmin(arr, 0), np.nanmax(arr, 0)
             label = "Pattern-RL" if algo == "pattern-rl" else "standard PPO"
