@@ -424,6 +424,7 @@ def fig5_section(fig5_dir: Path, figures: Path, run_it: bool, quick: bool) -> di
         "%Y-%m-%d %H:%M UTC")
     out["report"] = {k: v for k, v in f5.items() if k != "png"}
     out["machine"] = rep.get("machine")
+    shutil.copyfile(js, figures / "fig5_train_speed.json")  # the numbers quoted, kept beside
     if png.is_file():
         dst = figures / "fig5.png"
         shutil.copyfile(png, dst)
@@ -740,7 +741,8 @@ def write_doc(ctx: dict[str, Any], path: Path) -> None:
              "`--fig5-dir benchmarks/results` (or this script with `--fig5-run`)")
     if "png" in f5:
         L += [f"From `benchmarks/train_speed.py --fig5` (the trainer's benchmark), read from "
-              f"`{f5['dir']}/train_speed.json` (written {f5['json_mtime']}"
+              f"`{f5['dir']}/train_speed.json` (copied to `figures/fig5_train_speed.json`; "
+              f"written {f5['json_mtime']}"
               + (f", on {f5['machine']}" if f5.get("machine") else "") + "); this script did "
               + ("run it" if "ran_here_s" in f5 else "not run the training itself") + ".", ""]
         rep = f5["report"]
@@ -748,6 +750,15 @@ def write_doc(ctx: dict[str, Any], path: Path) -> None:
         if fr:
             L += [md_table(("pattern / algorithm", "mean episode reward at the end"),
                            [(k, _num(v, 2)) for k, v in fr.items()]), ""]
+            for pat in dict.fromkeys(k.split("/")[0] for k in fr):
+                a, b = fr.get(f"{pat}/pattern-rl"), fr.get(f"{pat}/ppo")
+                if a is None or b is None:
+                    continue
+                who = "Pattern-RL" if a > b else "standard PPO"
+                L += [f"- {pat}: {who} ends higher ({_num(max(a, b), 2)} vs "
+                      f"{_num(min(a, b), 2)}); the paper reports Pattern-RL higher in each "
+                      "iteration."]
+            L += [""]
         extra = {k: v for k, v in rep.items() if k != "final_reward"}
         if extra:
             L += ["Benchmark settings and figures as it reported them: `"
