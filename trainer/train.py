@@ -253,10 +253,10 @@ def _warm_start(agent: Agent, opt: Optimisers, obs: torch.Tensor, cfg: TrainConf
     if agent.decoder is None or opt.ae is None:
         return
     dec_opt = torch.optim.Adam(agent.decoder.parameters(), lr=1e-3)
-    e = agent.encoder(agent.normaliser(obs))
-    target = agent.normaliser(obs)
+    target = agent.normaliser(obs[:: max(1, obs.shape[0] // 4096)])  # a few thousand rows do
+    e = agent.encoder(target)
     with torch.enable_grad():
-        for _ in range(300):
+        for _ in range(200):
             loss = (agent.decoder(e) - target).pow(2).sum(-1).mean()
             dec_opt.zero_grad()
             loss.backward()
