@@ -159,7 +159,8 @@ def test_late_robot_is_counted_and_never_hangs(procs: Any, tmp_path: Path, kit: 
 def test_launch_forms_and_reports(tmp_path: Path, procs: Any, kit: Any) -> None:
     log = tmp_path / "runs" / "demo.mcap"
     launch = procs.start("launch", "launch", "--robots", "4", "--patterns", "circle,line",
-                         "--record", str(log), "--seed", "1", "--swarm", swarm_name("launch"))
+                         "--record", str(log), "--seed", "1", "--swarm", swarm_name("launch"),
+                             "--brains", "rule:assign")
     assert launch.wait(timeout=90) == 0, procs.log("launch")
     out = procs.log("launch")
     assert "circle" in out and "line" in out and "every pattern formed" in out
