@@ -51,7 +51,7 @@ from typing import IO, Any
 
 from runtime.brain import RULE_ASSIGN
 from runtime.patterns import pattern_label
-from runtime.zenoh_session import ZenohSetupError, open_session
+from runtime.zenoh_session import ZenohSetupError, open_session, world_port
 from sim_bridge.recorder import Recorder
 from sim_bridge.sim import (
     BrainChoice,
@@ -145,11 +145,16 @@ def pick_brains(value: str, patterns: list[str], n: int, prefer: str,
 # ------------------------------------------------------------------------ robots
 
 
-def free_port() -> int:
-    """A TCP port free on loopback right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+def free_port(preferred: int = 0) -> int:
+    """A TCP port free on loopback right now: ``preferred`` if it is free, else any."""
+    for port in (preferred, 0) if preferred else (0,):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise OSError("no free TCP port on 127.0.0.1")
 
 
 class Robots:
@@ -282,7 +287,8 @@ def run(args: argparse.Namespace) -> int:
     record: Path = args.record or Path("runs") / "demo.mcap"
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
-    port = args.zenoh_port or free_port()
+    # the swarm's own port when free, so `patternrl swap --swarm S` finds the run unaided
+    port = args.zenoh_port or free_port(world_port(swarm))
     out, err = sys.stdout, sys.stderr
     progress = ProgressLine(out)
     verbose = bool(args.verbose)
@@ -324,7 +330,8 @@ def run(args: argparse.Namespace) -> int:
                 return
 
     first = brains[patterns[0]].ref
-    say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm}, log {record}")
+    say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
+        f"(zenoh tcp/127.0.0.1:{port}), log {record}")
     res: RunResult | None = None
     try:
         world.open()  # listening before the robots come: their first status says their brain
