@@ -503,6 +503,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out-dir", type=Path, default=ROOT / "runs" / "general_brain",
                     help="pattern files and the dropout log (default runs/general_brain)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--save", type=Path, default=None, metavar="OUT.json",
+                    help="also write the JSON object there")
     args = ap.parse_args(argv)
     if args.quick:  # smaller defaults; what is given explicitly stays
         for name, full, quick in [("patterns", ",".join(BUILTINS + HANDMADE),
@@ -563,6 +565,8 @@ def main(argv: list[str] | None = None) -> int:
         "dropout": dropout, "wall_s": round(time.monotonic() - t0, 1),
         "cpus": os.cpu_count(), "load_1min": round(load, 2), "python": platform.python_version(),
     }
+    if args.save is not None:
+        args.save.write_text(json.dumps(out, indent=2))
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
