@@ -258,27 +258,34 @@ def lower_bound_distance(P: Array, C: Array) -> float:
 
     Exact for the assignment it settles on (the best translation is the centre
     of the smallest circle enclosing the displacements); the minimum over
-    assignments is an estimate by alternating bottleneck assignment and
-    translation from several starts.
+    assignments is an estimate: alternating bottleneck assignment and
+    translation from several starts (centroid alignment, the enclosing circle
+    of the squared-error assignment, and the displacements of up to 8 robots).
+    The value is attained by a real assignment and translation, so it never
+    lies below the true minimum; tests bound it within 3 % of brute force.
     """
     Pc = np.asarray(P, np.float64)
     Cc = np.asarray(C, np.float64)
+    d0 = Pc - Cc[assign_slots(Pc, Cc)]
+    starts = [Pc.mean(0) - Cc.mean(0), _min_enclosing_circle(d0)[0], *d0[: min(len(d0), 8)]]
     best = math.inf
-    starts = [Pc.mean(0) - Cc.mean(0)]
-    # the start from the squared-error assignment's enclosing circle
-    slots = assign_slots(Pc, Cc)
-    starts.append(_min_enclosing_circle(Pc - Cc[slots])[0])
-    for t0 in starts:
-        t = t0
+    seen: dict[bytes, float] = {}  # assignment -> its enclosing radius: starts often converge
+    for t in starts:
         prev = math.inf
         for _ in range(20):
             dist = np.linalg.norm(Pc[:, None, :] - Cc[None, :, :] - t, axis=-1)
             cols = _bottleneck_assignment(dist)
+            key = cols.tobytes()
+            if key in seen:
+                prev = min(prev, seen[key])
+                break
             t, r = _min_enclosing_circle(Pc - Cc[cols])
+            seen[key] = r
             if r >= prev - 1e-12:
+                prev = min(prev, r)
                 break
             prev = r
-        best = min(best, prev, r)
+        best = min(best, prev)
     return best
 
 
