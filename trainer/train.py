@@ -382,6 +382,11 @@ def train(
     gen = torch.Generator().manual_seed(cfg.seed)
     files = artefact_paths(plan.out)
 
+    def save(path: Path, wall_s: float, stage: int) -> None:
+        """Checkpoint the run as it stands now (reads the loop's current state)."""
+        _save(path, agent, opt, cfg, spec, kl_coef, it, episodes, agent_steps, wall_s, stage,
+              curve, best, gen)
+
     agent = Agent(spec.dim, cfg, world.v_max_mps)
     opt = make_optimisers(agent, cfg)
     kl_coef = cfg.kl_coef_init
@@ -522,22 +527,7 @@ def train(
                             "state": copy.deepcopy(agent.state_dict()),
                         }
                         if plan.write_files:
-                            _save(
-                                files["best"],
-                                agent,
-                                opt,
-                                cfg,
-                                spec,
-                                kl_coef,
-                                it,
-                                episodes,
-                                agent_steps,
-                                time.perf_counter() - t_start,
-                                stage,
-                                curve,
-                                best,
-                                gen,
-                            )
+                            save(files["best"], time.perf_counter() - t_start, stage)
 
                 recent = ep_returns[-4 * E :]
                 row: dict[str, Any] = {
@@ -566,22 +556,7 @@ def train(
                 if on_iteration is not None:
                     on_iteration(row)
                 if plan.write_files and it % plan.checkpoint_every == 0:
-                    _save(
-                        files["checkpoint"],
-                        agent,
-                        opt,
-                        cfg,
-                        spec,
-                        kl_coef,
-                        it,
-                        episodes,
-                        agent_steps,
-                        float(row["wall_s"]),
-                        stage,
-                        curve,
-                        best,
-                        gen,
-                    )
+                    save(files["checkpoint"], float(row["wall_s"]), stage)
                     write_curve(files["curve_csv"], curve)
 
                 # ---- stop this stage?
@@ -611,22 +586,7 @@ def train(
             "state": copy.deepcopy(agent.state_dict()),
         }
     if plan.write_files:
-        _save(
-            files["checkpoint"],
-            agent,
-            opt,
-            cfg,
-            spec,
-            kl_coef,
-            it,
-            episodes,
-            agent_steps,
-            wall,
-            len(plan.patterns) - 1,
-            curve,
-            best,
-            gen,
-        )
+        save(files["checkpoint"], wall, len(plan.patterns) - 1)
         write_curve(files["curve_csv"], curve)
         title = f"{cfg.algo}, {cfg.obs} observation, {N} robots, " + " > ".join(
             pattern_label(p) for p in plan.patterns
