@@ -9,7 +9,7 @@ robots. Each case runs the same seeded episodes (episode ``e`` is the first
 episode of env ``e`` of a world seeded with ``--seed + n``, so every brain and
 every pattern of a team size starts from the same positions) with
 :func:`trainer.evaluate.evaluate_brain`: the training world
-(:class:`trainer.world.BatchWorld`) and the runtime's
+(:class:`trainer.training_world.BatchWorld`) and the runtime's
 :func:`runtime.controller.decide_batch`, exactly as a robot decides (shared slot
 assignment with hysteresis, the observation builder, the policy mean, the clamp
 to v_max, the ORCA filter). Four brains on the same episodes:
@@ -74,7 +74,7 @@ sys.path.insert(0, str(ROOT))
 from runtime.brain import RULE_ASSIGN, Brain, load_brain  # noqa: E402 -- after the path set-up
 from runtime.patterns import make_pattern, min_spacing, resample_polyline  # noqa: E402
 from runtime.safety import OrcaParams  # noqa: E402
-from runtime.world import DEFAULT_WORLD  # noqa: E402
+from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from trainer.evaluate import EvalResult, evaluate_brain  # noqa: E402
 
 BUILTINS = ("circle", "cross", "line", "heart", "triangle")

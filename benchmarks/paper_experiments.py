@@ -80,7 +80,7 @@ if str(ROOT) not in sys.path:
 
 from runtime.brain import RULE_ASSIGN, Brain, BrainError, load_brain  # noqa: E402
 from runtime.safety import OrcaParams  # noqa: E402
-from runtime.world import DEFAULT_WORLD  # noqa: E402
+from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from trainer.evaluate import DEFAULT_EVAL_SEED, EvalResult, evaluate_brain  # noqa: E402
 
 W = DEFAULT_WORLD

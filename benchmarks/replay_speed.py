@@ -41,7 +41,6 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from runtime import keys
 from runtime.formation import assign_slots, centred
@@ -56,11 +55,10 @@ from runtime.messages import (
     encode_status,
 )
 from runtime.patterns import make_pattern
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from sim_bridge import analysis
 from sim_bridge.recorder import Recorder, iter_log, scene_update
 
-Array = NDArray[np.float64]
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 GOAL_MSGS_PER_S = 100_000.0
 

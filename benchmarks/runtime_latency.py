@@ -53,7 +53,7 @@ from runtime.controller import Controller  # noqa: E402
 from runtime.observation import ObservationSpec  # noqa: E402
 from runtime.patterns import make_pattern  # noqa: E402
 from runtime.safety import OrcaParams  # noqa: E402
-from runtime.world import DEFAULT_WORLD  # noqa: E402
+from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 
 W = DEFAULT_WORLD
 

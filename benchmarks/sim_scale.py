@@ -58,7 +58,7 @@ from runtime.formation import (  # noqa: E402 -- after the path set-up above
     slot_distances,
 )
 from runtime.patterns import make_pattern  # noqa: E402
-from runtime.world import DEFAULT_WORLD  # noqa: E402
+from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from sim_bridge.physics import PhysicsWorld, arena_for_patterns, sample_starts  # noqa: E402
 
 W = DEFAULT_WORLD
@@ -199,7 +199,7 @@ def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     """A world in this process, n robot processes, lockstep, until ``steps`` steps ran."""
     from runtime.zenoh_session import open_session
     from sim_bridge.launch import Robots, free_port
-    from sim_bridge.sim import SimConfig, World, rule_choice
+    from sim_bridge.sim import SimConfig, SimWorld, rule_choice
 
     patterns = ["circle", "line", "cross", "heart"] * 50
     swarm = f"bench-{n}-{os.getpid()}"
@@ -208,7 +208,7 @@ def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
                     brains={p: rule_choice() for p in patterns}, wait_robots_s=120.0,
                     first_step_deadline_ms=10_000.0)
     session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
-    world = World(cfg, session, None, log=lambda msg, detail: None)
+    world = SimWorld(cfg, session, None, log=lambda msg, detail: None)
 
     cpu0: list[float] = []  # the robots' CPU time at step 1: start-up left out
 

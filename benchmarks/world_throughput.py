@@ -1,4 +1,5 @@
-"""Agent-steps per second of the training world (trainer/world.py), with reward and termination.
+"""Agent-steps per second of the training world (trainer/training_world.py), with reward
+and termination.
 
 DESIGN.md budget: >= 1 M agent-steps/s at E = 64 envs x N = 10 robots. Each row
 times ``BatchWorld.step`` alone (the policy's actions are made outside the
@@ -33,14 +34,13 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from runtime.formation import assign_slots_batch
 from runtime.observation import ObservationSpec
-from trainer.world import BatchWorld
+from runtime.types import Array
+from trainer.training_world import BatchWorld
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

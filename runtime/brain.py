@@ -44,13 +44,15 @@ import numpy as np
 import onnxruntime as ort
 from numpy.typing import NDArray
 
+from runtime.errors import InputError
 from runtime.observation import (
     ObservationError,
     ObservationSpec,
     general_observation,
     paper_observation,
 )
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.types import Array
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
     "FORMAT",
@@ -69,7 +71,6 @@ __all__ = [
     "validate_brain_bytes",
 ]
 
-Array = NDArray[np.float64]
 
 FORMAT: Final = "patternrl-brain"
 FORMAT_VERSION: Final = 1
@@ -83,7 +84,7 @@ PROBE_SEED: Final = 20240917
 WARM_RUNS: Final = 20
 
 
-class BrainError(ValueError):
+class BrainError(InputError):
     """A brain that cannot be used; the message is one line."""
 
 

@@ -41,7 +41,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from runtime.brain import Brain
 from runtime.observation import (
@@ -50,7 +49,8 @@ from runtime.observation import (
     paper_observation,
 )
 from runtime.safety import OrcaParams, orca_filter, orca_filter_batch
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.types import Array, BoolArray, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
     "Controller",
@@ -61,9 +61,6 @@ __all__ = [
     "neighbour_rows",
 ]
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 #: The hysteresis margin of runtime.formation.assign_slots, repeated here so that a
 #: robot process never imports scipy.optimize (half a second and tens of MB at

@@ -24,15 +24,12 @@ import math
 from itertools import pairwise
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import maximum_bipartite_matching
 
-from runtime.world import DEFAULT_WORLD, WorldConfig
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from runtime.types import Array, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 #: Keep the previous assignment unless the new one lowers the summed squared
 #: distance by more than this fraction (plus a small absolute floor).

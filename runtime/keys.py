@@ -9,14 +9,15 @@ Layout (``<swarm>`` is one name of ``[A-Za-z0-9_-]+``, ``<id>`` a robot id >= 0)
     patternrl/<swarm>/brain               operator -> robots  a new brain to swap in
     patternrl/<swarm>/alive/<id>          liveliness token; the world uses id "world"
 
-Nothing else in the project should format a key by hand: build it here, so that a
-change of layout is a change of this file only.
+Nothing else in the project formats or parses a key by hand: build keys with the
+functions here and read them back with :func:`parse_key`, so that a change of
+layout is a change of this file only.
 """
 
 from __future__ import annotations
 
 import re
-from typing import Final
+from typing import Final, NamedTuple
 
 PREFIX: Final = "patternrl"
 WORLD_ID: Final = "world"
@@ -25,9 +26,18 @@ POSE: Final = "pose"
 CMD: Final = "cmd"
 STATUS: Final = "status"
 ROBOT_CHANNELS: Final = (POSE, CMD, STATUS)
+PATTERN: Final = "pattern"
+BRAIN: Final = "brain"
+ALIVE: Final = "alive"
+KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE)
+"""Every kind of key, as :attr:`Key.kind` names it."""
 
 _SWARM_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ALIVE_ID_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
+_ANY_KEY_RE: Final = re.compile(
+    r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status)"
+    r"|(pattern|brain)|alive/([A-Za-z0-9_-]+))"
+)
 _ROBOT_KEY_RE: Final = re.compile(
     r"patternrl/[A-Za-z0-9_-]+/(?:robot/(0|[1-9][0-9]*)/(?:pose|cmd|status)"
     r"|alive/(0|[1-9][0-9]*))"
@@ -127,3 +137,53 @@ def parse_robot_id(key: str) -> int | None:
         return None
     digits = m.group(1) if m.group(1) is not None else m.group(2)
     return int(digits)
+
+
+class Key(NamedTuple):
+    """A key taken apart by :func:`parse_key`."""
+
+    swarm: str
+    kind: str
+    """One of :data:`KINDS`."""
+    robot_id: int | None
+    """The robot a pose, cmd, status or alive key belongs to; None otherwise (and for
+    the world's alive key)."""
+    alive_id: str | None = None
+    """The raw id of an alive key (``"world"`` or a robot id), else None."""
+
+
+def parse_key(key: str) -> Key | None:
+    """Take apart any key this module builds; None for anything else.
+
+    The inverse of the builders: ``parse_key(pose_key("s", 3))`` is
+    ``Key("s", "pose", 3)``. Wildcards, other prefixes, zero-padded ids and
+    unknown channels give None.
+    """
+    if not isinstance(key, str):
+        return None
+    m = _ANY_KEY_RE.fullmatch(key)
+    if m is None:
+        return None
+    swarm, rid, channel, shared, alive = m.groups()
+    if channel is not None:
+        return Key(swarm, channel, int(rid))
+    if shared is not None:
+        return Key(swarm, shared, None)
+    robot = int(alive) if re.fullmatch(r"0|[1-9][0-9]*", alive) else None
+    return Key(swarm, ALIVE, robot, alive)
+
+
+def with_swarm(key: str, swarm: str) -> str | None:
+    """The same key in another swarm (playing a log into a new swarm); None if not ours."""
+    k = parse_key(key)
+    if k is None:
+        return None
+    if k.kind in ROBOT_CHANNELS:
+        assert k.robot_id is not None
+        return _robot_key(swarm, k.robot_id, k.kind)
+    if k.kind == PATTERN:
+        return pattern_key(swarm)
+    if k.kind == BRAIN:
+        return brain_key(swarm)
+    assert k.alive_id is not None
+    return alive_key(swarm, k.robot_id if k.robot_id is not None else k.alive_id)

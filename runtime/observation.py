@@ -37,10 +37,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.world import DEFAULT_WORLD, WorldConfig
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from runtime.errors import InputError
+from runtime.types import Array
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 OBS_NAMES = ("paper", "general")
 PAPER_FRAMES = 3
@@ -48,7 +47,7 @@ GENERAL_FIXED = 6
 GENERAL_PER_NEIGHBOUR = 5
 
 
-class ObservationError(ValueError):
+class ObservationError(InputError):
     """An observation spec that is unknown or inconsistent."""
 
 

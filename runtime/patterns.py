@@ -30,12 +30,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.errors import InputError
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 Points = NDArray[np.float64]
 
 
-class PatternError(ValueError):
+class PatternError(InputError):
     """A pattern that cannot be used; the message is one line."""
 
 

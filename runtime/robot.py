@@ -56,11 +56,11 @@ from typing import Any, Final, TextIO
 
 import numpy as np
 import zenoh
-from numpy.typing import NDArray
 
 from runtime import keys
 from runtime.brain import Brain, BrainError, BrainManifest, load_brain, validate_brain_bytes
 from runtime.controller import Controller, Decision
+from runtime.errors import InputError
 from runtime.messages import (
     BrainMsg,
     Command,
@@ -75,29 +75,24 @@ from runtime.messages import (
     encode_status,
 )
 from runtime.patterns import (
-    BUILTIN_PATTERNS,
     PatternError,
     make_pattern,
     min_spacing,
     pattern_label,
-    resample_polyline,
 )
 from runtime.safety import OrcaParams
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.team_pattern import fit_pattern
+from runtime.types import Array
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from runtime.zenoh_session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
 
 __all__ = ["Robot", "RobotConfig", "add_arguments", "run"]
 
-Array = NDArray[np.float64]
 
 HEAVY_MODULES = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
 MAX_STATUS_TEXT = 400
 MAX_COORD_M = 1e6  # a pose farther from the origin is malformed (and would overflow costs)
 SWAP_QUEUE = 4
-
-
-class InputError(ValueError):
-    """Bad user input: one line on stderr, exit code 2."""
 
 
 # -------------------------------------------------------------------- logging
@@ -474,20 +469,7 @@ class Robot:
         return pts, why
 
     def _fit_pattern(self, msg: PatternMsg, n: int) -> Array:
-        pts = np.asarray(msg.points, dtype=np.float64)
-        if len(pts) == n:
-            out = pts.copy()
-        elif msg.name in BUILTIN_PATTERNS:
-            return make_pattern(msg.name, n, self.world)
-        elif len(pts) >= 2 and n >= 2:
-            out = resample_polyline(pts, n, closed=False)
-        else:
-            raise PatternError(f"pattern '{msg.name}' has {len(pts)} points, the team has {n}")
-        if n >= 2 and min_spacing(out) < self.world.min_separation_m:
-            raise PatternError(
-                f"pattern '{msg.name}' for {n} robots puts two points closer than 2R"
-            )
-        return out
+        return fit_pattern(msg.name, np.asarray(msg.points, dtype=np.float64), n, self.world)
 
     # ------------------------------------------------------------------- loop
 

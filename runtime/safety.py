@@ -61,7 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
     "FilterResult",

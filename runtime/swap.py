@@ -42,14 +42,11 @@ from runtime.brain import (
     load_brain,
     sidecar_path,
 )
+from runtime.errors import InputError
 from runtime.messages import BrainMsg, MessageError, decode_status, encode_brain
 from runtime.zenoh_session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
 
 __all__ = ["SwapAnswer", "add_arguments", "parse_robots", "read_brain", "run", "swap_brain"]
-
-
-class InputError(ValueError):
-    """Bad user input: one line on stderr, exit code 2."""
 
 
 @dataclass

@@ -42,6 +42,7 @@ from typing import Final, Literal
 
 import zenoh
 
+from runtime.errors import InputError
 from runtime.keys import validate_swarm
 
 __all__ = [
@@ -67,7 +68,7 @@ MODES: Final = ("peer", "client", "router")
 Role = Literal["world", "robot", "tool"]
 
 
-class ZenohSetupError(ValueError):
+class ZenohSetupError(InputError):
     """A Zenoh configuration that cannot be used; the message is one line."""
 
 

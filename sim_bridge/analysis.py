@@ -94,14 +94,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime import keys
+from runtime.errors import InputError
 from runtime.formation import lower_bounds, swept_pair_distance
 from runtime.messages import VERSION as WIRE_VERSION
 from runtime.messages import MessageError, PatternMsg, Tag, decode_pattern
-from runtime.world import DEFAULT_WORLD, WorldConfig
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
+from runtime.types import Array, BoolArray, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 EVENTS_TOPIC: Final = "/world/events"
 METRICS_TOPIC: Final = "/world/metrics"
@@ -109,7 +107,7 @@ SCENE_TOPIC: Final = "/world/scene"
 WIRE_ENCODING: Final = "patternrl-wire"
 
 
-class LogError(ValueError):
+class LogError(InputError):
     """A file that is not a readable MCAP log; the message is one line."""
 
 
@@ -1231,21 +1229,14 @@ class CounterfactualReport:
 
 
 def _fit_pattern(msg: PatternMsg, n: int, world: WorldConfig) -> Array | None:
-    """The pattern a robot uses for a team of n (as ``runtime.robot`` fits it)."""
-    from runtime.patterns import BUILTIN_PATTERNS, PatternError, make_pattern, resample_polyline
+    """The pattern a robot uses for a team of n (:func:`runtime.team_pattern.fit_pattern`)."""
+    from runtime.patterns import PatternError
+    from runtime.team_pattern import fit_pattern
 
-    pts = np.asarray(msg.points, dtype=np.float64)
     try:
-        if len(pts) == n:
-            return pts.copy()
-        if msg.name in BUILTIN_PATTERNS:
-            return make_pattern(msg.name, n, world)
-        if len(pts) >= 2 and n >= 2:
-            out: Array = resample_polyline(pts, n, closed=False)
-            return out
+        return fit_pattern(msg.name, np.asarray(msg.points, dtype=np.float64), n, world)
     except PatternError:
         return None
-    return None
 
 
 def _summarise(dev: list[float], errors: int, interventions: int) -> Deviation:

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from runtime.patterns import PatternError, describe_builtins, make_pattern, min_spacing
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

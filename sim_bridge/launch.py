@@ -15,7 +15,7 @@ What it does:
    port, and starts ``--robots`` robot processes (``patternrl robot``) that connect
    to it, each with the first pattern's brain; at every pattern change the world
    swaps in the next pattern's brain where it differs (paper brains);
-3. runs the world in this process (:class:`sim_bridge.sim.World`), recording the
+3. runs the world in this process (:class:`sim_bridge.sim.SimWorld`), recording the
    MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
    terminal; the robots' own log lines go to ``<log stem>.robots.log``;
@@ -59,7 +59,7 @@ from sim_bridge.sim import (
     PhaseResult,
     Progress,
     RunResult,
-    World,
+    SimWorld,
     add_world_arguments,
     brains_from_arg,
     choose_brains,
@@ -305,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
     rec = Recorder(record)
-    world = World(cfg, session, rec, on_progress=progress.update, log=say)
+    world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
     robots = Robots()
     interrupted = threading.Event()
 

@@ -42,9 +42,8 @@ import pymunk
 import pymunk.batch as pb
 from numpy.typing import NDArray
 
-from runtime.world import DEFAULT_WORLD, WorldConfig
-
-Array = NDArray[np.float64]
+from runtime.types import Array
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 WALL_THICKNESS_M = 1.0
 """Walls are segments this thick, outside the arena: nothing tunnels through them."""

@@ -20,13 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from runtime.formation import centred
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.types import Array
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from sim_bridge.recorder import RecordedRun
-
-Array = NDArray[np.float64]
 
 
 @dataclass

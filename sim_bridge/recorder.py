@@ -62,7 +62,7 @@ from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
 from runtime import messages as wire
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 WIRE_ENCODING: Final = "patternrl-wire"
 EVENTS_TOPIC: Final = "/world/events"

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from runtime.errors import InputError
 from sim_bridge.analysis import (
     LogData,
     LogError,
@@ -53,13 +54,7 @@ from sim_bridge.analysis import (
     repair,
 )
 
-Array = NDArray[np.float64]
-
 MAX_FRAMES_DEFAULT = 300
-
-
-class InputError(ValueError):
-    """Bad user input: one line on stderr, exit code 2."""
 
 
 # ------------------------------------------------------------------------ pictures

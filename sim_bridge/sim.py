@@ -66,10 +66,10 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from numpy.typing import NDArray
 
 from runtime import keys
 from runtime.brain import RULE_ASSIGN, BrainError, BrainManifest, sidecar_path
+from runtime.errors import InputError
 from runtime.formation import (
     assign_slots,
     centred,
@@ -88,18 +88,13 @@ from runtime.messages import (
     encode_pose,
 )
 from runtime.patterns import PatternError, make_pattern, pattern_label
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.types import Array
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from runtime.zenoh_session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
 from sim_bridge.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
 from sim_bridge.recorder import Recorder, scene_update
 
-Array = NDArray[np.float64]
-
 DEFAULT_PATTERNS = "circle,cross,line,heart"
-
-
-class InputError(ValueError):
-    """Bad user input: one line on stderr, exit code 2."""
 
 
 # ------------------------------------------------------------------------ brains
@@ -257,7 +252,7 @@ class Progress:
 # ------------------------------------------------------------------------- world
 
 
-class World:
+class SimWorld:
     """One run of the world on an open Zenoh session."""
 
     def __init__(
@@ -913,7 +908,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"patternrl sim: error: {e}", file=sys.stderr)
         return 2
     rec = Recorder(args.record) if args.record is not None else None
-    world = World(cfg, session, rec)
+    world = SimWorld(cfg, session, rec)
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         world.stop_event.set()

@@ -26,12 +26,12 @@ from typing import Any
 
 from runtime.brain import BrainError, BrainManifest, load_brain
 from runtime.patterns import PatternError
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from trainer.config import ALGOS, PAPER_LRS, TrainConfig
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
 from trainer.train import InitError, RunPlan, artefact_paths, obs_spec_for, reward_for, train
-from trainer.world import PAPER_REWARD, check_pattern
+from trainer.training_world import PAPER_REWARD, check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0
 

@@ -115,7 +115,7 @@ class TrainConfig:
     """torch threads. The world steps in the same thread; on a busy 2-core machine a second
     torch thread made the update 7x slower (oversubscription), so 1 is the default."""
 
-    # ---- reward (trainer.world.RewardConfig fields); None keeps the world's default
+    # ---- reward (trainer.training_world.RewardConfig fields); None keeps the world's default
     reward: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

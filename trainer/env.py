@@ -1,7 +1,7 @@
 """Pattern formation as a PettingZoo ``ParallelEnv``: one world, N robots acting at once.
 
 ``from trainer.env import parallel_env``; ``env = parallel_env(pattern="heart", n_robots=10)``.
-A thin view of a single-env :class:`trainer.world.BatchWorld` (E = 1), so the
+A thin view of a single-env :class:`trainer.training_world.BatchWorld` (E = 1), so the
 dynamics, contacts, reward and termination are exactly those of the training
 world; its module docstring documents them.
 
@@ -15,7 +15,7 @@ Observation space    ``Box(-inf, inf, (D,), float32)``; ``obs="general"``:
                      ``obs="paper"``: D = 6 (n - 1) (n = 10: D = 54).
                      Layouts in :mod:`runtime.observation`
 Rewards              per agent, paper eq. 6 plus the documented extras
-                     (:class:`trainer.world.RewardConfig`)
+                     (:class:`trainer.training_world.RewardConfig`)
 Terminations         all agents at once when the pattern is formed (every robot
                      within ``formed_tol`` of its slot)
 Truncations          all agents at once at the step limit (default 400)
@@ -34,8 +34,8 @@ seed                 seed of the first episode when ``reset()`` gets none; a
                      ``reset(seed=s)`` re-seeds (same s, same episodes)
 obs                  ``"general"`` (default) or ``"paper"``
 k_neighbours         neighbours in the general observation (default 6)
-world                :class:`runtime.world.WorldConfig` (default the project's)
-reward               :class:`trainer.world.RewardConfig` (default documented)
+world                :class:`runtime.world_config.WorldConfig` (default the project's)
+reward               :class:`trainer.training_world.RewardConfig` (default documented)
 step_limit           steps before truncation (default ``world.step_limit``)
 render_mode          only ``None``
 ==================== ===========================================================
@@ -57,8 +57,8 @@ from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
 from runtime.observation import ObservationSpec
-from runtime.world import DEFAULT_WORLD, WorldConfig
-from trainer.world import DEFAULT_REWARD, BatchWorld, RewardConfig
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from trainer.training_world import DEFAULT_REWARD, BatchWorld, RewardConfig
 
 ObsDict = dict[str, NDArray[np.float32]]
 

@@ -6,7 +6,7 @@ it (onnxruntime, the manifest's observation spec, validation), and
 own pipeline (shared slot assignment with hysteresis, the same observation
 builder, deterministic action = the policy mean, clamp to v_max, the ORCA
 safety filter unless ``--safety off``). The world is the training world
-(:class:`trainer.world.BatchWorld`) with lower bounds computed per episode.
+(:class:`trainer.training_world.BatchWorld`) with lower bounds computed per episode.
 Episode ``e`` is the first episode of env ``e`` of a world seeded with
 ``--seed``: the same seed gives the same starts, whatever the brain.
 
@@ -49,8 +49,8 @@ from runtime.controller import decide_batch
 from runtime.formation import swept_pair_distance
 from runtime.patterns import PatternError, pattern_label
 from runtime.safety import OrcaParams
-from runtime.world import DEFAULT_WORLD, WorldConfig
-from trainer.world import BatchWorld, check_pattern
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from trainer.training_world import BatchWorld, check_pattern
 
 DEFAULT_EVAL_SEED = 1_000_000
 """Training uses ``--seed`` (default 0) and selects checkpoints on ``seed + 1_000_003``."""

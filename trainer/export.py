@@ -36,6 +36,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from runtime.brain import METADATA_KEY, BrainError, BrainManifest, brain_digest, sidecar_path
+from runtime.errors import InputError
 from trainer.config import TrainConfig
 from trainer.networks import NORM_CLIP, Agent
 
@@ -43,7 +44,7 @@ OPSET = 17
 IR_VERSION = 8  # readable by every onnxruntime this project supports (>= 1.17)
 
 
-class BrainFileError(ValueError):
+class BrainFileError(InputError):
     """A brain file that cannot be read back as an agent; the message is one line."""
 
 

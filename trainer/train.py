@@ -52,15 +52,16 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from runtime.errors import InputError
 from runtime.observation import ObservationSpec
 from runtime.patterns import pattern_label
-from runtime.world import DEFAULT_WORLD, WorldConfig
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.config import TrainConfig
 from trainer.export import BrainFileError, agent_from_onnx, read_manifest
 from trainer.networks import Agent, gaussian_logprob
 from trainer.storage import Rollout
+from trainer.training_world import BatchWorld, RewardConfig, check_pattern
 from trainer.update import Optimisers, UpdateStats, make_optimisers, update
-from trainer.world import BatchWorld, RewardConfig, check_pattern
 
 CURVE_FIELDS = (
     "iteration",
@@ -88,7 +89,7 @@ RESUME_SEED_STRIDE = 7919
 VALUE_WARMUP_ITERATIONS = 3
 
 
-class InitError(ValueError):
+class InitError(InputError):
     """An ``--init`` or ``--resume`` file that cannot be used; one-line message."""
 
 

@@ -22,7 +22,7 @@ import pytest
 
 from runtime.formation import assign_slots, collision_pairs, min_separation, slot_distances
 from runtime.messages import decode_command
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from sim_bridge.recorder import iter_log, read_run
 
 W = DEFAULT_WORLD

@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 
 from runtime.brain import RULE_ASSIGN, load_brain
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 ROOT = Path(__file__).resolve().parents[2]
 GENERAL_ENV = "PATTERNRL_GENERAL_BRAIN"

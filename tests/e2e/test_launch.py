@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from runtime.formation import assign_slots, formation_error, slot_distances
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from sim_bridge.recorder import RecordedRun, read_run
 
 TOL = DEFAULT_WORLD.formed_tol_m

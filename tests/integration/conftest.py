@@ -39,7 +39,7 @@ from runtime.messages import (
     encode_pose,
 )
 from runtime.patterns import make_pattern
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from runtime.zenoh_session import PORT_ENV, open_session
 
 ROOT = Path(__file__).resolve().parents[2]

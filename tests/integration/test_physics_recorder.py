@@ -16,7 +16,7 @@ import pytest
 from mcap.reader import make_reader
 
 from runtime import messages as wire
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from sim_bridge.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
 from sim_bridge.recorder import (
     EVENTS_TOPIC,

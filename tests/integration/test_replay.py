@@ -49,7 +49,7 @@ from runtime.messages import (
     encode_pose,
 )
 from runtime.patterns import make_pattern
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from runtime.zenoh_session import open_session
 from sim_bridge import analysis
 from sim_bridge.recorder import LogScan, Recorder, iter_log

@@ -34,7 +34,7 @@ from runtime.messages import (
 )
 from runtime.patterns import make_pattern
 from runtime.swap import swap_brain
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 W = DEFAULT_WORLD
 

@@ -24,7 +24,7 @@ from runtime.brain import (
     validate_brain_bytes,
 )
 from runtime.observation import ObservationSpec
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 GENERAL = ObservationSpec("general", k_neighbours=6)
 

@@ -19,7 +19,7 @@ from runtime.formation import assign_slots, formation_error, slot_positions
 from runtime.observation import ObservationSpec, general_observation_one, paper_observation
 from runtime.patterns import make_pattern
 from runtime.safety import OrcaParams
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 W = DEFAULT_WORLD
 

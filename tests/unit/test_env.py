@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from trainer.env import PatternFormationEnv, parallel_env
 
 

@@ -20,7 +20,7 @@ import pytest
 from runtime.brain import RULE_ASSIGN, load_brain
 from runtime.observation import ObservationSpec
 from runtime.safety import OrcaParams
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from trainer.evaluate import evaluate_brain
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -15,7 +15,7 @@ from runtime.patterns import (
     min_spacing,
     resample_polyline,
 )
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 
 @pytest.mark.parametrize("name", BUILTIN_PATTERNS)

@@ -23,7 +23,7 @@ from runtime.safety import (
     orca_filter,
     orca_filter_batch,
 )
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 
 W = DEFAULT_WORLD
 TWO_R = W.min_separation_m

@@ -11,7 +11,7 @@ import torch
 
 from runtime.brain import BrainManifest, load_brain
 from runtime.observation import ObservationSpec
-from runtime.world import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD
 from trainer.config import TrainConfig
 from trainer.evaluate import evaluate_brain
 from trainer.export import write_brain

@@ -1,4 +1,4 @@
-"""Tests of the batch training world (trainer/world.py)."""
+"""Tests of the batch training world (trainer/training_world.py)."""
 
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ from runtime.formation import (
 )
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern
-from runtime.world import DEFAULT_WORLD
-from trainer.world import (
+from runtime.world_config import DEFAULT_WORLD
+from trainer.training_world import (
     CONTACT_TOL_M,
     PAPER_REWARD,
     BatchWorld,
@@ -178,7 +178,7 @@ def test_crowd_driven_to_centre_never_interpenetrates() -> None:
 
 
 def test_jam_that_does_not_clear_holds_robots_still(monkeypatch: pytest.MonkeyPatch) -> None:
-    import trainer.world as world_module
+    import trainer.training_world as world_module
 
     monkeypatch.setattr(world_module, "CONTACT_SWEEPS", 1)  # too few sweeps for a chain
     w = make(n_envs=1, n_robots=4, build_obs=False)

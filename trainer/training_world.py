@@ -127,12 +127,8 @@ from numpy.typing import NDArray
 from runtime.formation import assign_slots_batch, lower_bounds
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern, random_pattern
-from runtime.world import DEFAULT_WORLD, WorldConfig
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
-F32Array = NDArray[np.float32]
+from runtime.types import Array, BoolArray, F32Array, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 RANDOM_PATTERN = "random"
 
