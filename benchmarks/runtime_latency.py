@@ -10,7 +10,7 @@ Measures, on this machine:
    256-128-128 on the general observation: a brain from ``exports/`` if one
    with the general spec exists, else random weights built here with the
    ``onnx`` helper). The teams are forming a circle from random starts, every
-   robot deciding with its own :class:`runtime.controller.Controller`, so the
+   robot deciding with its own :class:`runtime.decision.Controller`, so the
    filter meets real encounters. Budget: p99 <= 50 us at N = 10.
 2. **Process start -> first command**: ``patternrl robot`` started against a
    running stub world publishing step-0 poses. Budget: <= 1 s.
@@ -49,7 +49,7 @@ from runtime.brain import (  # noqa: E402
     load_brain,
     validate_brain_bytes,
 )
-from runtime.controller import Controller  # noqa: E402
+from runtime.decision import Controller  # noqa: E402
 from runtime.observation import ObservationSpec  # noqa: E402
 from runtime.patterns import make_pattern  # noqa: E402
 from runtime.safety import OrcaParams  # noqa: E402

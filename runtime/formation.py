@@ -16,25 +16,74 @@ Shared assignment
     scan order over robot ids, then slot index). A previous assignment is kept
     unless the new one is better by more than a hysteresis margin, so tiny
     differences between robots' frames (realtime mode) do not flip slots.
+    The robot solves it with :func:`assign_centred` (it caches the centred
+    pattern), the batch with :func:`assign_slots_batch`: one cost, one solver,
+    one hysteresis rule (:func:`keeps_previous`).
+
+Collisions and contacts
+    :func:`swept_pair_distance` (closest approach along straight moves) is the
+    one definition; :func:`collision_pairs`, :func:`count_collisions`,
+    :func:`min_swept_separation` and the training world's pair-major
+    :func:`swept_contacts` all read it. :func:`min_separation` is the static
+    closest pair (per row of any batch, e.g. a (T, n, 2) track).
+
+The solver is loaded without the rest of scipy.optimize, and scipy.sparse only
+where the lower bounds need it, so a robot process imports this module cheaply.
 """
 
 from __future__ import annotations
 
+import functools
+import importlib.machinery
+import importlib.util
 import math
-from itertools import pairwise
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import maximum_bipartite_matching
 
-from runtime.types import Array, IntArray
+from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 #: Keep the previous assignment unless the new one lowers the summed squared
 #: distance by more than this fraction (plus a small absolute floor).
 HYSTERESIS_REL = 1e-3
 HYSTERESIS_ABS_M2 = 1e-6
+
+
+def _load_lsap() -> Callable[..., Any]:
+    """scipy's ``linear_sum_assignment`` without importing all of scipy.optimize.
+
+    The solver is one C extension, ``scipy/optimize/_lsap``; loading it by file
+    skips the package's ``__init__`` (linprog, linalg, sparse, ...: half a second
+    and tens of MB at a robot's start). Falls back on the ordinary import if the
+    file is not where it is expected. (scipy.sparse, which only the lower bounds
+    need, is imported where they run.)
+    """
+    try:
+        import scipy
+
+        base = Path(scipy.__path__[0]) / "optimize"
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+            path = base / f"_lsap{suffix}"
+            if path.is_file():
+                spec = importlib.util.spec_from_file_location("scipy.optimize._lsap", path)
+                if spec is None or spec.loader is None:
+                    break
+                mod = importlib.util.module_from_spec(spec)
+                spec.loader.exec_module(mod)
+                fn: Callable[..., Any] = mod.linear_sum_assignment
+                return fn
+    except (ImportError, OSError, AttributeError):
+        pass
+    from scipy.optimize import linear_sum_assignment as lsa
+
+    fallback: Callable[..., Any] = lsa
+    return fallback
+
+
+linear_sum_assignment = _load_lsap()
 
 
 def centred(points: Array) -> Array:
@@ -44,10 +93,43 @@ def centred(points: Array) -> Array:
     return out
 
 
-def _sq_cost(P: Array, C: Array) -> Array:
-    d = centred(P)[..., :, None, :] - centred(C)[..., None, :, :]
-    out: Array = np.einsum("...k,...k->...", d, d)
+def centred_cost(Pc: Array, Cc: Array) -> Array:
+    """Squared distances between already centred positions and pattern points.
+
+    ``Pc`` (..., n, 2), ``Cc`` (..., n, 2) -> (..., n, n), ``[i, j]`` robot i to point j.
+    """
+    d = Pc[..., :, None, :] - Cc[..., None, :, :]
+    d *= d
+    out: Array = d[..., 0] + d[..., 1]
     return out
+
+
+def _sq_cost(P: Array, C: Array) -> Array:
+    return centred_cost(centred(P), centred(C))
+
+
+def keeps_previous(new_cost: Array | float, old_cost: Array | float) -> BoolArray:
+    """The hysteresis rule: keep the previous assignment unless the new one is better
+    by more than the margin. Summed squared costs (m^2), scalars or arrays alike."""
+    keep: BoolArray = np.logical_not(
+        new_cost < old_cost - (HYSTERESIS_REL * old_cost + HYSTERESIS_ABS_M2)
+    )
+    return keep
+
+
+def assign_centred(Pc: Array, Cc: Array, previous: IntArray | None = None) -> IntArray:
+    """:func:`assign_slots` of an already centred team ``Pc`` (n, 2) and pattern ``Cc`` (n, 2).
+
+    The robot's path: it caches the centred pattern and needs the team's centroid
+    anyway, so nothing is centred twice.
+    """
+    cost = centred_cost(Pc, Cc)
+    cols: IntArray = linear_sum_assignment(cost)[1]
+    if previous is not None and len(previous) == len(cols) and previous.tolist() != cols.tolist():
+        rows = np.arange(len(cols))
+        if keeps_previous(cost[rows, cols].sum(), cost[rows, previous].sum()):
+            return previous
+    return cols
 
 
 def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
@@ -57,15 +139,8 @@ def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArr
     centred pattern. With ``previous`` (a permutation from the last step) the
     old assignment is kept unless the new one is better by the hysteresis margin.
     """
-    cost = _sq_cost(P, C)
-    _, cols = linear_sum_assignment(cost)
-    slots: IntArray = cols.astype(np.int64)
-    if previous is not None and len(previous) == len(slots) and not np.array_equal(previous, slots):
-        rows = np.arange(len(slots))
-        new, old = cost[rows, slots].sum(), cost[rows, previous].sum()
-        if not new < old - (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2):
-            return previous.astype(np.int64)
-    return slots
+    prev = None if previous is None else np.asarray(previous, dtype=np.int64)
+    return assign_centred(centred(P), centred(C), prev).astype(np.int64)
 
 
 def assign_slots_batch(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
@@ -78,7 +153,7 @@ def assign_slots_batch(P: Array, C: Array, previous: IntArray | None = None) -> 
     if previous is not None:
         new = np.take_along_axis(cost, slots[..., None], -1)[..., 0].sum(-1)
         old = np.take_along_axis(cost, previous[..., None], -1)[..., 0].sum(-1)
-        keep = ~(new < old - (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2))
+        keep = keeps_previous(new, old)
         slots[keep] = previous[keep]
     return slots
 
@@ -170,6 +245,9 @@ def _min_enclosing_circle(pts: Array) -> tuple[Array, float]:
 
 def _bottleneck_assignment(dist: Array) -> IntArray:
     """Assignment minimising the largest distance (binary search over thresholds)."""
+    from scipy.sparse import csr_matrix  # the lower bounds only: not at a robot's start
+    from scipy.sparse.csgraph import maximum_bipartite_matching
+
     n = dist.shape[0]
     values = np.unique(dist)
     lo, hi = 0, len(values) - 1
@@ -358,8 +436,86 @@ def count_collisions(
     return out
 
 
-def path_length(track: Array) -> Array:
-    """Length of each robot's path, track (T, n, 2) -> (n,)."""
-    steps = [np.linalg.norm(b - a, axis=-1) for a, b in pairwise(track)]
-    out: Array = np.sum(steps, axis=0) if steps else np.zeros(track.shape[1])
+
+def min_swept_separation(P0: Array, P1: Array) -> Array:
+    """Closest approach of any two robots during the straight moves P0 -> P1, (...,) metres.
+
+    ``P0``, ``P1``: (..., n, 2). The minimum of :func:`swept_pair_distance` over
+    the pairs: what a step's moves, as commanded, bring two centres down to.
+    """
+    out: Array = swept_pair_distance(np.asarray(P0, np.float64), np.asarray(P1, np.float64)).min(
+        axis=(-1, -2)
+    )
     return out
+
+
+def formation_measure(P: Array, C: Array) -> tuple[Array, Array]:
+    """(formation error, farthest robot from its slot) per team, metres, in one assignment.
+
+    ``P`` (..., n, 2), ``C`` (n, 2) or (..., n, 2) -> two arrays (...,). The centred
+    optimal assignment without hysteresis: the error is the RMS slot distance,
+    and "formed" is the second value within ``formed_tol_m``.
+    """
+    p = np.asarray(P, dtype=np.float64)
+    flat = p.reshape(-1, *p.shape[-2:])
+    c = np.broadcast_to(np.asarray(C, dtype=np.float64), p.shape).reshape(flat.shape)
+    d = slot_distances(flat, c, assign_slots_batch(flat, c))
+    err: Array = np.sqrt(np.mean(d * d, axis=-1)).reshape(p.shape[:-2])
+    far: Array = d.max(axis=-1).reshape(p.shape[:-2])
+    return err, far
+
+
+# ----------------------------------------------------- contacts, pair-major layout
+#
+# The training world keeps positions robot-major, (2, N, E) (component, robot,
+# env), and pair arrays as (P, E) over the N(N-1)/2 pairs: with the env axis
+# innermost numpy's inner loops are long. These are the same geometry as
+# swept_pair_distance in that layout.
+
+
+@functools.lru_cache(maxsize=8)
+def robot_pairs(n: int) -> tuple[IntArray, IntArray, Array]:
+    """The n(n-1)/2 pairs i < j in ``np.triu_indices(n, 1)`` order: (i, j, D) with
+    ``D`` (P, n) the difference operator, ``(D @ x)[p] = x[j_p] - x[i_p]`` exactly
+    (each row holds one +1 and one -1, so the product rounds once, like ``-``)."""
+    i, j = np.triu_indices(n, 1)
+    D = np.zeros((len(i), n))
+    D[np.arange(len(i)), j] = 1.0
+    D[np.arange(len(i)), i] = -1.0
+    D.flags.writeable = False
+    return i.astype(np.int64), j.astype(np.int64), D
+
+
+def swept_contacts(X0: Array, U: Array, limit_m: float) -> BoolArray:
+    """Pairs whose closest approach during the straight moves X0 -> X0 + U is below ``limit_m``.
+
+    ``X0``, ``U``: (2, N, E) positions and displacements. Returns (P, E) over
+    the pairs of :func:`robot_pairs`. The closest approach is that of
+    :func:`swept_pair_distance` (relative motion ``d(s) = d0 + s dd``, ``s`` in
+    [0, 1]), computed pair-major.
+    """
+    D = robot_pairs(X0.shape[1])[2]
+    d0 = D @ X0  # (2, P, E): x_j - x_i
+    dd = D @ U
+    a = d0[0] * d0[0] + d0[1] * d0[1]
+    b = d0[0] * dd[0] + d0[1] * dd[1]
+    c = dd[0] * dd[0] + dd[1] * dd[1]
+    s = np.divide(-b, c, out=np.zeros_like(b), where=c > 0.0)  # the time of closest approach
+    np.clip(s, 0.0, 1.0, out=s)
+    hit: BoolArray = a + s * (2.0 * b + s * c) < limit_m * limit_m
+    return hit
+
+
+def overlaps(X: Array, limit_m: float) -> tuple[Array, Array, BoolArray]:
+    """Every ordered pair's offset, squared distance and overlap, robot-major.
+
+    ``X`` (2, N, k) -> (diff (2, N, N, k) with ``diff[:, i, j] = x_i - x_j``,
+    squared distance (N, N, k) with a huge diagonal, overlap (N, N, k): closer
+    than ``limit_m``).
+    """
+    diff = X[:, :, None, :] - X[:, None, :, :]
+    d2 = diff[0] * diff[0] + diff[1] * diff[1]
+    n = X.shape[1]
+    d2[np.arange(n), np.arange(n)] = 1e18  # no robot overlaps itself
+    over: BoolArray = d2 < limit_m * limit_m
+    return diff, d2, over

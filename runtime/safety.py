@@ -66,7 +66,6 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 __all__ = [
     "FilterResult",
     "OrcaParams",
-    "min_pairwise_distance",
     "orca_filter",
     "orca_filter_batch",
 ]
@@ -439,13 +438,3 @@ def orca_filter_batch(
         changed[i] = res.changed
     return safe, changed
 
-
-def min_pairwise_distance(positions: npt.ArrayLike) -> float:
-    """Smallest distance between two of n centres, shape (n, 2), m; inf if n < 2."""
-    p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
-    if p.shape[0] < 2:
-        return math.inf
-    d = p[:, None, :] - p[None, :, :]
-    dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
-    np.fill_diagonal(dist, np.inf)
-    return float(dist.min())

@@ -15,7 +15,7 @@ Observation space    ``Box(-inf, inf, (D,), float32)``; ``obs="general"``:
                      ``obs="paper"``: D = 6 (n - 1) (n = 10: D = 54).
                      Layouts in :mod:`runtime.observation`
 Rewards              per agent, paper eq. 6 plus the documented extras
-                     (:class:`trainer.training_world.RewardConfig`)
+                     (:class:`trainer.reward.RewardConfig`)
 Terminations         all agents at once when the pattern is formed (every robot
                      within ``formed_tol`` of its slot)
 Truncations          all agents at once at the step limit (default 400)
@@ -35,7 +35,7 @@ seed                 seed of the first episode when ``reset()`` gets none; a
 obs                  ``"general"`` (default) or ``"paper"``
 k_neighbours         neighbours in the general observation (default 6)
 world                :class:`runtime.world_config.WorldConfig` (default the project's)
-reward               :class:`trainer.training_world.RewardConfig` (default documented)
+reward               :class:`trainer.reward.RewardConfig` (default documented)
 step_limit           steps before truncation (default ``world.step_limit``)
 render_mode          only ``None``
 ==================== ===========================================================
@@ -58,7 +58,8 @@ from pettingzoo import ParallelEnv
 
 from runtime.observation import ObservationSpec
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-from trainer.training_world import DEFAULT_REWARD, BatchWorld, RewardConfig
+from trainer.reward import DEFAULT_REWARD, RewardConfig
+from trainer.training_world import BatchWorld
 
 ObsDict = dict[str, NDArray[np.float32]]
 

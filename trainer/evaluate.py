@@ -2,7 +2,7 @@
 
 The brain runs exactly as on a robot: :func:`runtime.brain.load_brain` loads
 it (onnxruntime, the manifest's observation spec, validation), and
-:func:`runtime.controller.decide_batch` makes every decision with the robot's
+:func:`runtime.decision.decide_batch` makes every decision with the robot's
 own pipeline (shared slot assignment with hysteresis, the same observation
 builder, deterministic action = the policy mean, clamp to v_max, the ORCA
 safety filter unless ``--safety off``). The world is the training world
@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 
 from runtime.brain import Brain, BrainError, load_brain
-from runtime.controller import decide_batch
-from runtime.formation import swept_pair_distance
+from runtime.decision import decide_batch
+from runtime.formation import min_swept_separation
 from runtime.patterns import PatternError, pattern_label
 from runtime.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -159,8 +159,8 @@ def evaluate_brain(
             )
             vel[live] = v
             p0 = bw.frames[live, 0]
-            swept = swept_pair_distance(p0, p0 + dt * v)  # the moves as commanded
-            min_sep[live] = np.minimum(min_sep[live], swept.min(axis=(1, 2)))
+            swept = min_swept_separation(p0, p0 + dt * v)  # the moves as commanded
+            min_sep[live] = np.minimum(min_sep[live], swept)
             prev_slots[live] = slots
             changed_steps += int(changed.sum())
             robot_steps += changed.size

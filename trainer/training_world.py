@@ -16,50 +16,21 @@ Step (``BatchWorld.step``), in order
        has a non-finite component holds still (NaN/inf -> 0); a faster action
        is scaled down to ``v_max`` (direction kept).
     2. **Kinematics** ``p += a dt`` (paper eq. 2).
-    3. **Contact.** Robots are rigid discs of radius R: a pair whose straight
-       swept paths come closer than 2R during the step (the closest approach of
-       :func:`runtime.formation.swept_pair_distance`, the definition behind
-       ``count_collisions``, computed here in the layout above; a test holds
-       the two equal) is a *collision* and counted, one per pair per step, and
-       charged to both robots. Overlaps left at the end of the move
-       are resolved by a few vectorised Jacobi sweeps of pairwise projection:
-       each overlapping pair is pushed apart symmetrically along its centre
-       line to exactly 2R (sweeps after the first over-relax, so a jam of many
-       discs clears in a few sweeps and may end with gaps slightly above 2R);
-       a pair pushed apart in a later sweep (a robot shoved into a third one)
-       is a collision too. This is what the pymunk world
-       shows: discs that meet are pushed apart by the contact and never
-       interpenetrate, and a robot that drives into another one stops at
-       contact instead of passing. Should a jam not clear within
-       ``CONTACT_SWEEPS`` sweeps, the robots still overlapping hold their
-       previous (valid) positions (counted in ``BatchWorld.contact_fallbacks``);
-       so after every step all centres are at least 2R apart (to 1e-6 m).
-       The projection needs ``v_max dt <= R`` (the default is exactly R):
-       then no centre can cross another's within a step, so a push never
-       swaps two robots; other worlds are refused. The plane has no walls:
-       the arena only bounds the starts.
+    3. **Contact** (:mod:`trainer.contacts`): rigid discs of radius R; a pair
+       whose straight swept paths come closer than 2R is a *collision*,
+       counted once per pair per step and charged to both robots; overlaps
+       are pushed apart, so after every step all centres are at least 2R
+       apart (to 1e-6 m). Needs ``v_max dt <= R``; other worlds are refused.
+       The plane has no walls: the arena only bounds the starts.
     4. **Shared assignment**, solved once per step and used for reward,
        termination and observation alike: ``assign_slots_batch(previous=...)``
        (centred, error-optimal, with hysteresis), every env every step. Slot
        positions, slot distances and the formation error follow from it
        (what ``slot_positions``, ``slot_distances`` and
        ``formation_error_batch`` give for that assignment; tested equal).
-    5. **Reward**, per robot, paper eq. 6 plus two documented extras::
-
-           r_i = R_g + R_c * c_i + beta * r_p + w_prog * prog_i + B * formed
-
-       ``c_i``: collisions robot i took part in this step. ``r_p`` is the
-       *change* of the formation error (eq. 7, the RMS distance under the best
-       assignment and translation), ``r_p = (err_{t-1} - err_t) / (v_max dt)``:
-       a potential-based form of eq. 7 (Ng et al. 1999), which telescopes over
-       an episode to the error removed, so it cannot be farmed and does not
-       change which policy is optimal; normalised so that the whole team
-       moving at full speed straight at its slots scores about +1.
-       ``prog_i = (|p_i(t-1) - g_i| - |p_i(t) - g_i|) / (v_max dt)`` in [-1, 1]:
-       robot i's own progress toward ``g_i``, the slot it was shown in its
-       observation at t-1 (the shared assignment's slot in world coordinates).
-       A training-only, per-robot credit signal; 0 disables it.
-       ``formed``: 1 on the step the pattern is formed (every robot).
+    5. **Reward**, per robot: paper eq. 6 plus a per-robot progress term and
+       a bonus on the formed step (:func:`trainer.reward.step_reward`, which
+       documents every term and constant).
     6. **Termination.** *Formed*: every robot within ``formed_tol`` of its slot
        under the shared assignment (``slot_distances``; the assignment is the
        error-optimal one, up to the hysteresis margin). *Truncated*: the step
@@ -70,6 +41,9 @@ Step (``BatchWorld.step``), in order
        statistics, including their last observation (``final_obs``, for
        bootstrapping the value of a truncated episode).
 
+Reward constants: :mod:`trainer.reward` (``RewardConfig``, ``DEFAULT_REWARD``,
+``PAPER_REWARD``).
+
 Starts and patterns
     Each env owns a ``numpy.random.Generator`` spawned from ``SeedSequence(seed)``
     (child e for env e), used only by that env's resets: env e's sequence of
@@ -79,45 +53,12 @@ Starts and patterns
     sampling: every robot too close to a lower-numbered one is redrawn, all at
     once). Patterns are ``make_pattern(name, N)`` (cached per name); the name
     ``"random"`` draws a fresh ``random_pattern`` from the env's generator.
-
-Reward constants (``RewardConfig()``; per robot, per step)
-
-    ================ ======= =====================================================
-    constant         default why
-    ================ ======= =====================================================
-    step_penalty     -0.05   R_g, fatigue (paper: negative constant). Small next
-                             to the dense terms (O(1) per step) so it does not
-                             drown them, large enough that dawdling short of
-                             "formed" costs: at gamma = 0.99 hovering forever is
-                             worth -5, so finishing is always better.
-    collision_penalty -1.0   R_c per collision the robot is part of: 20 steps of
-                             fatigue, one full-speed step of the robot's own
-                             progress. A detour of a few steps is cheaper than a
-                             contact, and pushing into a neighbour (no progress,
-                             -1 every step) never pays.
-    beta             1.0     weight of r_p (team progress, change form, above).
-                             Summed over an episode it is the initial error in
-                             steps (about 30-40 from uniform starts here): a
-                             dense team signal on the paper's own term.
-    progress_weight  1.0     per-robot progress toward its own slot: the
-                             training-only credit signal that, in the experiment
-                             quoted in issue 2, made the difference between a
-                             circle formed within 2 minutes of training and one
-                             not formed after 12. 0 gives the paper's reward.
-    formed_bonus     1.0     once, to every robot, on the formed step: marks
-                             success in the return; the fatigue already makes
-                             ending early pay, so it stays modest.
-    ================ ======= =====================================================
-
-    ``PAPER_REWARD`` is eq. 6 alone (no progress term, no bonus).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
@@ -125,10 +66,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime.formation import assign_slots_batch, lower_bounds
-from runtime.observation import ObservationSpec, general_observation, paper_observation
+from runtime.observation import ObservationSpec, observe
 from runtime.patterns import make_pattern, random_pattern
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from trainer.contacts import move
+from trainer.reward import (  # re-export: moved to trainer.reward
+    DEFAULT_REWARD,
+    PAPER_REWARD,
+    RewardConfig,
+    step_reward,
+)
 
 RANDOM_PATTERN = "random"
 
@@ -139,37 +87,7 @@ def check_pattern(name: str | Path, n_robots: int, world: WorldConfig = DEFAULT_
         make_pattern(name, n_robots, world)
 """Pattern name that draws a fresh random shape at every reset."""
 
-CONTACT_TOL_M = 1e-6
-"""Two centres closer than 2R - this are interpenetrating (count_collisions' default)."""
-
-CONTACT_SWEEPS = 16
-"""Jacobi projection sweeps before the hold-still fallback."""
-
-CONTACT_OVER_RELAX = 1.7
-"""Over-relaxation of the sweeps after the first. A jam of ten robots all driven at
-their centroid needs a median of 19 plain Jacobi sweeps (99th percentile 31) but
-6 (99th percentile 9, never more than 12) over-relaxed; an isolated pair is
-resolved by the first, plain sweep to exactly 2R."""
-
 _MAX_START_DRAWS = 10_000
-
-
-@dataclass(frozen=True)
-class RewardConfig:
-    """Reward constants, per robot per step (see the module docstring's table)."""
-
-    step_penalty: float = -0.05
-    collision_penalty: float = -1.0
-    beta: float = 1.0
-    progress_weight: float = 1.0
-    formed_bonus: float = 1.0
-
-
-DEFAULT_REWARD = RewardConfig()
-"""The documented defaults (the table above)."""
-
-PAPER_REWARD = RewardConfig(progress_weight=0.0, formed_bonus=0.0)
-"""The paper's eq. 6 alone: fatigue, collisions, team progress."""
 
 
 class EpisodeStats(NamedTuple):
@@ -220,42 +138,6 @@ def _env_major(X: Array) -> Array:
     return np.ascontiguousarray(X.transpose(2, 1, 0))
 
 
-# ------------------------------------------------------------------- contacts
-
-
-@functools.lru_cache(maxsize=8)
-def robot_pairs(n: int) -> tuple[IntArray, IntArray, Array]:
-    """The n(n-1)/2 pairs i < j in ``np.triu_indices(n, 1)`` order: (i, j, D) with
-    ``D`` (P, n) the difference operator, ``(D @ x)[p] = x[j_p] - x[i_p]`` exactly
-    (each row holds one +1 and one -1, so the product rounds once, like ``-``)."""
-    i, j = np.triu_indices(n, 1)
-    D = np.zeros((len(i), n))
-    D[np.arange(len(i)), j] = 1.0
-    D[np.arange(len(i)), i] = -1.0
-    D.flags.writeable = False
-    return i.astype(np.int64), j.astype(np.int64), D
-
-
-def swept_contacts(X0: Array, U: Array, limit_m: float) -> BoolArray:
-    """Pairs whose closest approach during the straight moves X0 -> X0 + U is below ``limit_m``.
-
-    ``X0``, ``U``: (2, N, E) positions and displacements. Returns (P, E) over
-    the pairs of :func:`robot_pairs`. The closest approach is that of
-    :func:`runtime.formation.swept_pair_distance` (relative motion
-    ``d(s) = d0 + s dd``, ``s`` in [0, 1]), computed pair-major.
-    """
-    D = robot_pairs(X0.shape[1])[2]
-    d0 = D @ X0  # (2, P, E): x_j - x_i
-    dd = D @ U
-    a = d0[0] * d0[0] + d0[1] * d0[1]
-    b = d0[0] * dd[0] + d0[1] * dd[1]
-    c = dd[0] * dd[0] + dd[1] * dd[1]
-    s = np.divide(-b, c, out=np.zeros_like(b), where=c > 0.0)  # the time of closest approach
-    np.clip(s, 0.0, 1.0, out=s)
-    hit: BoolArray = a + s * (2.0 * b + s * c) < limit_m * limit_m
-    return hit
-
-
 # ----------------------------------------------------------------------- world
 
 
@@ -270,7 +152,7 @@ class BatchWorld:
         obs_spec: ObservationSpec,
         *,
         world: WorldConfig = DEFAULT_WORLD,
-        reward: RewardConfig = RewardConfig(),
+        reward: RewardConfig = DEFAULT_REWARD,
         seed: int = 0,
         compute_bounds: bool = False,
         step_limit: int | None = None,
@@ -308,7 +190,6 @@ class BatchWorld:
         self._two_r = world.min_separation_m
         self._reach = world.max_step_m
         self._formed_tol2 = world.formed_tol_m**2
-        self._diag = np.arange(N)
         self._lower = np.tril(np.ones((N, N), dtype=bool), -1)  # [i, j]: j < i
         self._env_col = np.arange(E)[:, None]
         self._no_obs: F32Array = np.zeros((E, N, 0), dtype=np.float32)
@@ -529,17 +410,8 @@ class BatchWorld:
         sel = slice(None) if ids is None else ids
         if not self.build_obs:
             return self._no_obs if ids is None else self._no_obs[: len(ids)]
-        if self.obs_spec.name == "paper":
-            obs = paper_observation(self.frames[sel])
-        else:
-            goals = self._G.transpose(2, 1, 0)
-            obs = general_observation(
-                self.frames[sel, 0],
-                self.frames[sel, 1],
-                goals[sel],
-                k=self.obs_spec.k_neighbours,
-                world=self.world,
-            )
+        goals = self._G.transpose(2, 1, 0)[sel] if self.obs_spec.needs_slots else None
+        obs = observe(self.obs_spec, self.frames[sel], goals, None, self.world)
         return obs.astype(np.float32)
 
     def observe(self) -> F32Array:
@@ -567,125 +439,103 @@ class BatchWorld:
         V *= v / np.fmax(np.sqrt(speed2), v)  # min(1, v_max / |a|): direction kept
         return V
 
-    def _resolve(self, X0: Array, X1: Array, hit: BoolArray) -> tuple[Array, BoolArray]:
-        """Push overlapping discs apart in the envs of ``hit`` (N, N, k); (2, N, k) arrays.
-
-        Returns the resolved positions and every pair that touched. Two centres
-        exactly on top of each other have no centre line to push along; they are
-        left to the hold-still fallback (it never happens with real-valued motion).
-        """
-        limit2 = (self._two_r - CONTACT_TOL_M) ** 2
-        X = X1.copy()
-        touched = hit.copy()
-        d_idx = self._diag
-        half_push = 0.5
-        for _ in range(CONTACT_SWEEPS):
-            diff = X[:, :, None, :] - X[:, None, :, :]  # [k, i, j]: x_i - x_j
-            d2 = diff[0] * diff[0] + diff[1] * diff[1]
-            d2[d_idx, d_idx] = 1e18  # no robot pushes itself
-            over = d2 < limit2
-            if not over.any():
-                return X, touched
-            touched |= over
-            # each robot of an overlapping pair moves (2R - d) / 2 along the centre line
-            push = over * (half_push * (self._two_r / np.sqrt(np.fmax(d2, 1e-24)) - 1.0))
-            X += np.einsum("kije,ije->kie", diff, push)
-            half_push = 0.5 * CONTACT_OVER_RELAX
-        # jammed: robots still overlapping hold their previous (valid) positions
-        for _ in range(self.n_robots + 1):
-            diff = X[:, :, None, :] - X[:, None, :, :]
-            d2 = diff[0] * diff[0] + diff[1] * diff[1]
-            d2[d_idx, d_idx] = 1e18
-            over = d2 < limit2
-            stuck = over.any(axis=1)
-            if not stuck.any():
-                break
-            self.contact_fallbacks += int(stuck.sum())
-            touched |= over
-            X[:, stuck] = X0[:, stuck]
-        return X, touched
-
-    def step(self, actions: NDArray[np.floating]) -> StepResult:
-        """Advance every env by one step; see the module docstring for the order of events."""
-        cfg, w = self.reward_config, self.world
-        V = self._velocities(actions)
+    def _move(self, V: Array) -> tuple[Array, IntArray, IntArray]:
+        """Kinematics and contacts (:func:`trainer.contacts.move`): (positions (2, N, E),
+        collisions per robot (N, E), colliding pairs per env (E,)); adds to the
+        episode's collisions and travel."""
         X0 = self._X
-        U = V * w.dt_s
-        X1 = X0 + U
-
-        # contacts: collisions from the swept paths, overlaps pushed apart
-        hit = swept_contacts(X0, U, self._two_r - CONTACT_TOL_M)  # (P, E)
-        touched_envs = np.flatnonzero(hit.any(axis=0))
-        hits, collisions = self._no_hits, self._no_collisions
-        if len(touched_envs):
-            k = touched_envs
-            pi, pj, _ = robot_pairs(self.n_robots)
-            pairs = np.zeros((self.n_robots, self.n_robots, len(k)), dtype=bool)
-            pairs[pi, pj] = pairs[pj, pi] = hit[:, k]
-            Xk, touched = self._resolve(X0[:, :, k], X1[:, :, k], pairs)
-            X1[:, :, k] = Xk
-            hits = np.zeros_like(self._no_hits)
-            hits[:, k] = touched.sum(axis=1)
-            collisions = hits.sum(axis=0) // 2
+        X1, hits, collisions, fallbacks = move(X0, V * self.world.dt_s, self._two_r)
+        if hits is None:
+            hits, collisions = self._no_hits, self._no_collisions
+        else:
             self.episode_collisions += collisions
+        self.contact_fallbacks += fallbacks
         moved = X1 - X0
         self._travel += np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
+        return X1, hits, collisions
 
-        # the shared assignment, solved once; it gives slots, slot distances, error, formed
-        P1 = _env_major(X1)
-        slots = assign_slots_batch(P1, self.pattern, previous=self.slots)
+    def _assign(self, X: Array, P: Array) -> tuple[IntArray, Array, Array]:
+        """The shared assignment at positions ``X`` (2, N, E) = ``P`` (E, N, 2), once per step.
+
+        Returns (slots (E, N), slot positions (2, N, E), squared slot distances
+        (N, E)): what ``assign_slots_batch(previous=...)``, ``slot_positions`` and
+        ``slot_distances ** 2`` give.
+        """
+        slots = assign_slots_batch(P, self.pattern, previous=self.slots)
         Q = _robot_major(self.pattern[self._env_col, slots])  # each robot's (centred) slot point
-        G = Q + X1.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)  # = slot_positions(...)
-        gap = X1 - G
-        dist2 = gap[0] * gap[0] + gap[1] * gap[1]  # = slot_distances(...) ** 2, (N, E)
-        error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
-        formed = dist2.max(axis=0) <= self._formed_tol2
-        dist = np.sqrt(dist2)
+        G = Q + X.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)
+        gap = X - G
+        return slots, G, gap[0] * gap[0] + gap[1] * gap[1]
 
-        # reward, (N, E): R_g + R_c * hits + beta * r_p + w * progress (+ bonus)
-        reward = cfg.collision_penalty * hits + cfg.step_penalty
-        reward += (cfg.beta / self._reach) * (self.error - error)
-        if cfg.progress_weight:
-            after = X1 - self._G  # to the slot shown in the last observation
-            after_len = np.sqrt(after[0] * after[0] + after[1] * after[1])
-            reward += (cfg.progress_weight / self._reach) * (self._dist - after_len)
-        if cfg.formed_bonus and formed.any():
-            reward[:, formed] += cfg.formed_bonus
-
+    def _advance(
+        self,
+        P: Array,
+        X: Array,
+        G: Array,
+        dist2: Array,
+        hits: IntArray,
+        slots: IntArray,
+        error: Array,
+        reward: Array,
+    ) -> None:
+        """Make this step's state current: frames shifted, slots, error, counters."""
         frames = np.empty_like(self.frames)  # new array: views handed out stay as they were
-        frames[:, 0] = P1
+        frames[:, 0] = P
         frames[:, 1:] = self.frames[:, :2]
         self.frames = frames
-        self._X, self._G, self._dist, self._hits = X1, G, dist, hits
+        self._X, self._G, self._dist, self._hits = X, G, np.sqrt(dist2), hits
         self.slots, self.error = slots, error
         self.steps += 1
         self.episode_return += reward.sum(axis=0) * (1.0 / self.n_robots)
+
+    def _done(self, formed: BoolArray) -> tuple[BoolArray, BoolArray]:
+        """(truncated, done), (E,) each: the step limit reached unformed; formed or truncated."""
         truncated = self.steps >= self.step_limit
         truncated &= ~formed
-        done = formed | truncated
+        return truncated, formed | truncated
+
+    def _finish(self, ended: IntArray, formed: BoolArray, obs: F32Array) -> EpisodeStats:
+        """Statistics of the episodes of ``ended`` (before their reset), from this step's state."""
+        P1 = self.frames[:, 0]
+        return EpisodeStats(
+            env_ids=ended,
+            formed=formed[ended],
+            steps=self.steps[ended].copy(),
+            travel=self._travel[:, ended].sum(axis=0),
+            collisions=self.episode_collisions[ended].copy(),
+            final_error=self.error[ended].copy(),
+            episode_return=self.episode_return[ended].copy(),
+            pattern_ids=self.pattern_ids[ended].copy(),
+            final_obs=obs[ended],
+            final_positions=P1[ended],
+            lower_bound_steps=self.lower_bound_steps[ended].copy() if self.compute_bounds else None,
+            lower_bound_travel=self.lower_bound_travel[ended].copy()
+            if self.compute_bounds
+            else None,
+        )
+
+    def step(self, actions: NDArray[np.floating]) -> StepResult:
+        """Advance every env by one step: the steps of the module docstring, in order.
+
+        Shapes inside: robot-major (2, N, E) and (N, E); returned (E, N, ...).
+        """
+        V = self._velocities(actions)  # 1. actions -> velocities
+        X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
+        P1 = _env_major(X1)
+        slots, G, dist2 = self._assign(X1, P1)  # 4. shared assignment
+        error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
+        formed = dist2.max(axis=0) <= self._formed_tol2
+        cfg, reach = self.reward_config, self._reach  # 5. reward, (N, E)
+        reward = step_reward(cfg, hits, self.error, error, X1, self._G, self._dist, formed, reach)
+
+        self._advance(P1, X1, G, dist2, hits, slots, error, reward)
+        truncated, done = self._done(formed)  # 6. termination
 
         obs = self._observe()
         episode = None
         ended = np.flatnonzero(done)
-        if len(ended):
-            episode = EpisodeStats(
-                env_ids=ended,
-                formed=formed[ended],
-                steps=self.steps[ended].copy(),
-                travel=self._travel[:, ended].sum(axis=0),
-                collisions=self.episode_collisions[ended].copy(),
-                final_error=error[ended].copy(),
-                episode_return=self.episode_return[ended].copy(),
-                pattern_ids=self.pattern_ids[ended].copy(),
-                final_obs=obs[ended],
-                final_positions=P1[ended],
-                lower_bound_steps=self.lower_bound_steps[ended].copy()
-                if self.compute_bounds
-                else None,
-                lower_bound_travel=self.lower_bound_travel[ended].copy()
-                if self.compute_bounds
-                else None,
-            )
+        if len(ended):  # 7. auto-reset of the finished envs
+            episode = self._finish(ended, formed, obs)
             self.pattern = self.pattern.copy()  # arrays handed out stay as they were
             self._reset_envs(ended)
             if self.build_obs:
@@ -701,7 +551,6 @@ class BatchWorld:
             episode=episode,
         )
 
-
 __all__ = [
     "DEFAULT_REWARD",
     "PAPER_REWARD",
@@ -711,6 +560,4 @@ __all__ = [
     "RewardConfig",
     "StepResult",
     "check_pattern",
-    "robot_pairs",
-    "swept_contacts",
 ]

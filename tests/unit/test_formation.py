@@ -11,16 +11,22 @@ from hypothesis import strategies as st
 from runtime.formation import (
     _min_enclosing_circle,
     _weiszfeld,
+    assign_centred,
     assign_slots,
     assign_slots_batch,
     collision_pairs,
     count_collisions,
     formation_error,
     formation_error_batch,
+    formation_measure,
     is_formed,
+    keeps_previous,
     lower_bound_distance,
     lower_bounds,
     min_separation,
+    min_swept_separation,
+    overlaps,
+    slot_distances,
     slot_positions,
 )
 from runtime.patterns import BUILTIN_PATTERNS, make_pattern
@@ -142,3 +148,45 @@ def test_min_separation_batch() -> None:
     P = np.array([[[0.0, 0.0], [3.0, 4.0], [0.0, 1.0]]])
     assert np.allclose(min_separation(P), [1.0])
     assert min_separation(P[0]) == pytest.approx(1.0)
+
+
+def test_assign_centred_is_assign_slots_and_keeps_on_near_ties() -> None:
+    rng = np.random.default_rng(5)
+    C = make_pattern("heart", 7)
+    for _ in range(20):
+        P = rng.uniform(0, 5, (7, 2))
+        Pc, Cc = P - P.mean(0), C - C.mean(0)
+        np.testing.assert_array_equal(assign_centred(Pc, Cc), assign_slots(P, C))
+    P = np.array([[0.5, 0.0], [0.5, 1e-9]])
+    Cc = np.array([[-0.5, 0.0], [0.5, 0.0]])
+    prev = np.array([1, 0])
+    np.testing.assert_array_equal(assign_centred(P - P.mean(0), Cc, prev), prev)
+    assert keeps_previous(1.0, 1.0) and not keeps_previous(0.5, 1.0)
+    np.testing.assert_array_equal(keeps_previous(np.array([1.0, 0.5]), 1.0), [True, False])
+
+
+def test_min_swept_separation_and_formation_measure() -> None:
+    P0 = np.array([[0.0, 0.0], [0.3, 0.0], [5.0, 5.0]])
+    P1 = np.array([[0.3, 0.0], [0.0, 0.0], [5.0, 5.0]])
+    assert min_swept_separation(P0, P1) == pytest.approx(0.0)  # they pass through each other
+    both = min_swept_separation(np.stack([P0, P0]), np.stack([P1, P0]))
+    np.testing.assert_allclose(both, [0, 0.3], atol=1e-12)
+    rng = np.random.default_rng(2)
+    P = rng.uniform(0, 5, (4, 6, 2))
+    C = make_pattern("circle", 6)
+    err, far = formation_measure(P, C)
+    slots = assign_slots_batch(P, C)
+    np.testing.assert_allclose(err, formation_error_batch(P, C, slots), rtol=1e-12)
+    np.testing.assert_allclose(far, slot_distances(P, C, slots).max(-1), rtol=1e-12)
+    e1, f1 = formation_measure(P[0], C)
+    assert e1.shape == () and float(e1) == pytest.approx(formation_error(P[0], C), rel=1e-12)
+    assert float(f1) == pytest.approx(far[0])
+
+
+def test_overlaps_marks_pairs_closer_than_the_limit() -> None:
+    P = np.array([[[0.0, 0.0], [0.15, 0.0], [1.0, 0.0]]])  # (E=1, n=3, 2)
+    X = P.transpose(2, 1, 0)
+    diff, d2, over = overlaps(X, 0.2)
+    assert over[:, :, 0].tolist() == [[False, True, False], [True, False, False], [False] * 3]
+    np.testing.assert_allclose(diff[:, 0, 1, 0], [-0.15, 0.0])
+    assert d2[0, 2, 0] == pytest.approx(1.0)

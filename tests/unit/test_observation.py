@@ -8,8 +8,8 @@ from runtime.observation import (
     ObservationError,
     ObservationSpec,
     general_observation,
-    general_observation_one,
     neighbours_from_general,
+    observe,
     paper_observation,
 )
 from runtime.patterns import make_pattern
@@ -25,14 +25,18 @@ def _world(E: int = 3, n: int = 8, seed: int = 0) -> tuple[np.ndarray, np.ndarra
 
 
 @pytest.mark.parametrize("k", [1, 3, 7, 12])
-def test_general_single_robot_path_matches_batch(k: int) -> None:
+def test_general_selected_rows_are_the_full_rows(k: int) -> None:
     pos, prev, sp = _world()
     obs = general_observation(pos, prev, sp, k)
     assert obs.shape == (3, 8, ObservationSpec("general", k_neighbours=k).dim)
+    sel = np.array([5, 0, 3])
+    some = general_observation(pos, prev, sp[:, sel], k, robots=sel)
+    np.testing.assert_array_equal(some, obs[:, sel])
     for e in range(3):
-        for i in range(8):
-            one = general_observation_one(i, pos[e], prev[e], sp[e, i], k)
-            np.testing.assert_allclose(one, obs[e, i], atol=1e-12)
+        for i in range(8):  # one robot of one team: the robot's own decision
+            one = general_observation(pos[e], prev[e], sp[e, i], k, robots=[i])
+            assert one.shape == (1, obs.shape[-1])
+            np.testing.assert_array_equal(one[0], obs[e, i])
 
 
 def test_general_layout() -> None:
@@ -57,7 +61,7 @@ def test_general_layout() -> None:
 
 def test_general_ties_broken_by_index() -> None:
     pos = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0]])
-    obs = general_observation_one(0, pos, pos, pos[0], k=2)
+    obs = general_observation(pos, pos, pos[0], k=2, robots=[0])[0]
     rel, _, _ = neighbours_from_general(obs, 2)
     np.testing.assert_allclose(rel, [[1.0, 0.0], [-1.0, 0.0]])  # robots 1 then 2
 
@@ -75,6 +79,29 @@ def test_paper_observation_order_and_frames() -> None:
     order = np.argsort(d0, kind="stable")[: n - 1]
     for frame in range(3):
         np.testing.assert_allclose(o[frame], f[e, frame, order] - f[e, frame, i])
+
+
+def test_paper_selected_rows_are_the_full_rows() -> None:
+    rng = np.random.default_rng(8)
+    for n in (2, 3, 7, 10):
+        frames = rng.uniform(0, 2, (2, 3, n, 2))
+        full = paper_observation(frames)
+        for i in range(n):
+            np.testing.assert_array_equal(paper_observation(frames[1], [i])[0], full[1, i])
+        np.testing.assert_array_equal(paper_observation(frames, [n - 1, 0]), full[:, [n - 1, 0]])
+
+
+def test_observe_dispatches_on_the_spec() -> None:
+    pos, prev, sp = _world(E=2, n=6)
+    frames = np.stack([pos, prev, prev], axis=1)  # (E, 3, n, 2)
+    g = ObservationSpec("general", k_neighbours=3)
+    np.testing.assert_array_equal(observe(g, frames, sp), general_observation(pos, prev, sp, 3))
+    one = observe(g, [pos[1], prev[1], prev[1]], sp[1, 2], [2])
+    np.testing.assert_array_equal(one[0], general_observation(pos, prev, sp, 3)[1, 2])
+    p = ObservationSpec("paper", n_robots=6)
+    np.testing.assert_array_equal(observe(p, frames, None), paper_observation(frames))
+    with pytest.raises(ObservationError):
+        observe(g, frames, None)
 
 
 def test_spec_round_trip_and_errors() -> None:

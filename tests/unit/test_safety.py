@@ -16,10 +16,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from runtime.formation import min_separation, min_swept_separation
 from runtime.safety import (
     FilterResult,
     OrcaParams,
-    min_pairwise_distance,
     orca_filter,
     orca_filter_batch,
 )
@@ -38,20 +38,6 @@ class Run:
     min_frame_dist: float  # closest approach at any frame
     min_path_dist: float  # closest approach along the straight moves between frames
     arrived_step: int | None  # first step at which every robot was within tol of its goal
-
-
-def _segment_min_dist(a0: Arr, a1: Arr) -> float:
-    """Closest approach of any pair moving linearly from frame a0 to a1, (n, 2) each."""
-    r0 = a0[:, None, :] - a0[None, :, :]
-    r1 = a1[:, None, :] - a1[None, :, :]
-    dr = r1 - r0
-    den = np.einsum("ijk,ijk->ij", dr, dr)
-    s = np.where(den > 0, -np.einsum("ijk,ijk->ij", r0, dr) / np.where(den > 0, den, 1), 0)
-    s = np.clip(s, 0.0, 1.0)
-    closest = r0 + s[..., None] * dr
-    d = np.sqrt(np.einsum("ijk,ijk->ij", closest, closest))
-    np.fill_diagonal(d, np.inf)
-    return float(d.min())
 
 
 def simulate(
@@ -75,7 +61,7 @@ def simulate(
     cap = np.full(n, W.v_max_mps) if speeds is None else np.asarray(speeds, dtype=np.float64)
     prev = p.copy()
     frames = [p.copy()]
-    min_frame = min_pairwise_distance(p)
+    min_frame = float(min_separation(p))
     min_path = math.inf
     arrived: int | None = None
     mask = ~np.eye(n, dtype=bool)
@@ -95,8 +81,8 @@ def simulate(
         prev = p
         p = p + W.dt_s * v
         frames.append(p.copy())
-        min_frame = min(min_frame, min_pairwise_distance(p))
-        min_path = min(min_path, _segment_min_dist(prev, p))
+        min_frame = min(min_frame, float(min_separation(p)))
+        min_path = min(min_path, float(min_swept_separation(prev, p)))
         if arrived is None and np.all(np.linalg.norm(g - p, axis=1) <= W.formed_tol_m):
             arrived = t + 1
     return Run(np.array(frames), min_frame, min_path, arrived)
@@ -376,8 +362,3 @@ def test_batch_matches_single_and_respects_mask() -> None:
         [[1.0, 0.0]], [[1.0, 0.0]], [[[0.3, 0.0]]], [[[-1.0, 0.0]]], [[False]]
     )
     assert not c2[0] and tuple(s2[0]) == (1.0, 0.0)
-
-
-def test_min_pairwise_distance() -> None:
-    assert min_pairwise_distance(np.array([[0.0, 0.0], [3.0, 4.0], [0.0, 1.0]])) == 1.0
-    assert min_pairwise_distance(np.zeros((1, 2))) == math.inf

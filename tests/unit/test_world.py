@@ -13,21 +13,17 @@ from runtime.formation import (
     count_collisions,
     formation_error_batch,
     min_separation,
+    robot_pairs,
     slot_distances,
     slot_positions,
+    swept_contacts,
     swept_pair_distance,
 )
 from runtime.observation import ObservationSpec, general_observation, paper_observation
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
-from trainer.training_world import (
-    CONTACT_TOL_M,
-    PAPER_REWARD,
-    BatchWorld,
-    RewardConfig,
-    robot_pairs,
-    swept_contacts,
-)
+from trainer.contacts import CONTACT_TOL_M
+from trainer.training_world import PAPER_REWARD, BatchWorld, RewardConfig
 
 W = DEFAULT_WORLD
 TWO_R = W.min_separation_m
@@ -178,7 +174,7 @@ def test_crowd_driven_to_centre_never_interpenetrates() -> None:
 
 
 def test_jam_that_does_not_clear_holds_robots_still(monkeypatch: pytest.MonkeyPatch) -> None:
-    import trainer.training_world as world_module
+    import trainer.contacts as world_module
 
     monkeypatch.setattr(world_module, "CONTACT_SWEEPS", 1)  # too few sweeps for a chain
     w = make(n_envs=1, n_robots=4, build_obs=False)
@@ -433,3 +429,19 @@ def test_set_patterns_retargets_from_where_robots_stand() -> None:
     np.testing.assert_allclose(w.pattern[0], make_pattern("line", 6), atol=1e-12)
     w.reset()
     np.testing.assert_allclose(w.pattern[0], make_pattern("cross", 6), atol=1e-12)
+
+
+def test_step_reward_terms() -> None:
+    from trainer.reward import DEFAULT_REWARD, PAPER_REWARD, step_reward
+
+    hits = np.array([[1], [0]])
+    X = np.array([[[0.0], [1.0]], [[0.0], [0.0]]])  # (2, N=2, E=1)
+    goals = np.zeros((2, 2, 1))
+    dist_before = np.array([[0.1], [1.0]])
+    formed = np.array([False])
+    err0, err1 = np.array([0.3]), np.array([0.2])
+    r = step_reward(PAPER_REWARD, hits, err0, err1, X, goals, dist_before, formed, REACH)
+    np.testing.assert_allclose(r[:, 0], [-1.0 - 0.05 + 1.0, -0.05 + 1.0])
+    formed = np.array([True])
+    r = step_reward(DEFAULT_REWARD, hits, err1, err1, X, goals, dist_before, formed, REACH)
+    np.testing.assert_allclose(r[:, 0], [-1.0 - 0.05 + 1.0 + 1.0, -0.05 + 0.0 + 1.0])

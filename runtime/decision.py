@@ -1,0 +1,367 @@
+"""The decision pipeline: one robot's decision, and the same decision for a batch of teams.
+
+A decision is a list of named steps, each with one implementation:
+
+1. **assign** -- the shared slot assignment with hysteresis
+   (:func:`runtime.formation.assign_centred` for one team,
+   :func:`runtime.formation.assign_slots_batch` for E teams: one cost, one
+   solver, one hysteresis rule).
+2. **observe** -- :func:`runtime.observation.observe`, the builder the
+   brain's spec names, for every robot or for the robot's own row.
+3. **act** -- :func:`brain_velocities`: the brain's velocity per row (m/s).
+4. **command** -- :func:`command`: clamp to v_max, the ORCA safety filter
+   on the robot's view of its neighbours (:func:`neighbour_rows` over
+   :func:`frame_velocities`), clamp again. A non-finite brain velocity holds
+   the robot still.
+
+Two entry points run these steps:
+
+:class:`Controller`
+    The robot's path: one robot, one team, called once per step with the
+    current poses of the live robots ordered by robot id. It keeps the state
+    the steps need between calls -- the last three frames (the paper
+    observation and velocity estimates need them), the previous assignment
+    (hysteresis), the centred pattern -- and builds only its own row.
+
+:func:`decide_batch`
+    The evaluation path (the trainer's ``eval``, benchmarks): E teams at
+    once, one ``brain.act`` on (E*n, dim), then :func:`command` per robot.
+
+Frames. ``frames[0]`` is the newest (t), ``frames[1]`` is t-1 and
+``frames[2]`` is t-2; at the start (or after the team size changes) the
+missing earlier frames repeat frame t, so the first velocity estimate is zero.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from runtime.brain import Brain
+from runtime.formation import assign_centred, assign_slots_batch, slot_positions
+from runtime.observation import observe
+from runtime.safety import OrcaParams, orca_filter
+from runtime.types import Array, BoolArray, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+__all__ = [
+    "Command",
+    "Controller",
+    "Decision",
+    "brain_velocities",
+    "clamp_speed",
+    "command",
+    "decide_batch",
+    "frame_velocities",
+    "neighbour_rows",
+]
+
+ERR_NONFINITE = "brain output non-finite: holding still"
+ERR_TEAM = "brain cannot drive this team size: holding still"
+ERR_BRAIN = "brain failed: holding still"
+
+Rows = list[list[float]]
+Neighbours = tuple[list[float], Rows, Rows]
+"""What :func:`neighbour_rows` gives: (own velocity, others' relative positions,
+others' velocities), plain floats."""
+
+
+@dataclass(slots=True)
+class Decision:
+    """One robot's decision for one step."""
+
+    velocity: tuple[float, float]
+    """The command (m/s): after the safety filter, norm <= v_max."""
+    brain_velocity: tuple[float, float]
+    """What the brain asked for (m/s), before clamping and the filter."""
+    safety_changed: bool
+    """Whether the safety filter changed the (clamped) brain velocity."""
+    safety_change_mps: float
+    """By how much (norm of the difference, m/s)."""
+    decision_us: float
+    """Wall time of the whole decision (assignment, observation, brain, filter)."""
+    error: str = ""
+    """Empty when all went well; else why the robot holds still this step."""
+    slot: int = -1
+    """The pattern index this robot was assigned (-1 without an assignment)."""
+
+
+class Command(NamedTuple):
+    """Step 4's outcome for one robot."""
+
+    velocity: tuple[float, float]
+    """m/s, norm <= v_max."""
+    changed: bool
+    """Whether the safety filter changed the clamped brain velocity."""
+    change_mps: float
+    """Norm of that change (m/s)."""
+
+
+# ------------------------------------------------------------------- helpers
+
+
+def clamp_speed(vx: float, vy: float, v_max: float) -> tuple[float, float]:
+    """(vx, vy) scaled down to norm <= v_max (exactly, both ways of taking the norm)."""
+    sp = math.hypot(vx, vy)
+    if sp > v_max:
+        s = v_max / sp
+        vx, vy = vx * s, vy * s
+        while max(math.hypot(vx, vy), math.sqrt(vx * vx + vy * vy)) > v_max:
+            vx, vy = vx * (1.0 - 1e-15), vy * (1.0 - 1e-15)
+    return vx, vy
+
+
+def frame_velocities(L: Rows, Lp: Rows, dt: float) -> Rows:
+    """Every robot's velocity estimated from two frames: (p_t - p_{t-1}) / dt, plain floats.
+
+    The same IEEE operations as the observation builders' ``(p - prev) / dt``.
+    """
+    return [[(a[0] - b[0]) / dt, (a[1] - b[1]) / dt] for a, b in zip(L, Lp, strict=True)]
+
+
+def neighbour_rows(i: int, L: Rows, V: Rows) -> Neighbours:
+    """Robot i's view of its neighbours for the safety filter.
+
+    ``L``: positions at t, ``V``: :func:`frame_velocities`, both in robot-id
+    order. Returns (own velocity, every other robot's position relative to
+    robot i, those robots' absolute velocities), others in id order with i left
+    out. ORCA itself keeps the ``max_neighbours`` nearest within
+    ``neighbour_dist_m``, with deterministic ties.
+    """
+    px, py = L[i]
+    rel = [[q[0] - px, q[1] - py] for q in L]
+    del rel[i]
+    return V[i], rel, V[:i] + V[i + 1 :]
+
+
+# --------------------------------------------------------------------- steps
+
+
+def brain_velocities(brain: Brain, obs: Array) -> Rows:
+    """Step 3: the brain's velocity for every row of ``obs`` (m, dim) -> m rows [vx, vy] (m/s)."""
+    out: Rows = np.asarray(brain.act(obs), dtype=np.float64).tolist()
+    return out
+
+
+def command(
+    bvx: float,
+    bvy: float,
+    neighbours: Neighbours | None,
+    safety: OrcaParams | None,
+    world: WorldConfig,
+) -> Command | None:
+    """Step 4 for one robot: clamp -> ORCA safety filter -> clamp; None if not finite.
+
+    ``neighbours``: :func:`neighbour_rows` of the robot (None when it has none);
+    ``safety`` None skips the filter. None means the brain's velocity was not
+    finite: the robot holds still.
+    """
+    if not (math.isfinite(bvx) and math.isfinite(bvy)):
+        return None
+    v_max = world.v_max_mps
+    vx, vy = clamp_speed(bvx, bvy, v_max)
+    if safety is None or neighbours is None:
+        return Command((vx, vy), False, 0.0)
+    own, rel, nbv = neighbours
+    res = orca_filter((vx, vy), own, rel, nbv, world=world, params=safety)
+    return Command(
+        clamp_speed(res.velocity[0], res.velocity[1], v_max), res.changed, res.change_mps
+    )
+
+
+# ------------------------------------------------------------------ one robot
+
+
+class Controller:
+    """One robot's decision maker: the pipeline's steps on its own row, with their state.
+
+    Not thread-safe: call :meth:`decide`, :meth:`set_brain` and :meth:`reset`
+    from one thread (the control loop); swapping a brain between two decisions
+    is then atomic by construction.
+    """
+
+    def __init__(
+        self,
+        brain: Brain,
+        world: WorldConfig = DEFAULT_WORLD,
+        safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
+    ) -> None:
+        self.world = world
+        self.safety = safety
+        self._brain = brain
+        self._pattern_obj: object = None
+        self._cc: Array = np.zeros((0, 2))
+        self.reset()
+
+    # ---------------------------------------------------------------- state
+
+    @property
+    def brain(self) -> Brain:
+        return self._brain
+
+    def set_brain(self, brain: Brain) -> None:
+        """Use ``brain`` from the next decision on (frames and slots are kept)."""
+        self._brain = brain
+
+    def reset(self) -> None:
+        """Forget the history: frames and previous assignment."""
+        self._n = -1
+        self._frames: list[Array] = []
+        self._last_step: int | None = None
+        self._prev_slots: IntArray | None = None
+
+    @property
+    def previous_slots(self) -> IntArray | None:
+        return self._prev_slots
+
+    def _set_pattern(self, pattern: Array) -> None:
+        c = np.asarray(pattern, dtype=np.float64)
+        if c.ndim != 2 or c.shape[-1] != 2:
+            raise ValueError(f"pattern must have shape (n, 2), got {c.shape}")
+        self._cc = c - c.mean(axis=0, keepdims=True)
+        self._pattern_obj = pattern
+        self._prev_slots = None
+
+    def _use_pattern(self, pattern: Array) -> None:
+        """Cache the centred pattern; the same array object (or equal values) keeps it."""
+        if pattern is self._pattern_obj:
+            return
+        old = self._pattern_obj
+        if (
+            isinstance(old, np.ndarray)
+            and old.shape == np.shape(pattern)
+            and np.array_equal(old, pattern)
+        ):
+            self._pattern_obj = pattern
+        else:
+            self._set_pattern(pattern)
+
+    def _push(self, pos: Array, step: int | None) -> None:
+        n = pos.shape[0]
+        if n != self._n:
+            self._n = n
+            self._frames = [pos, pos, pos]
+            self._prev_slots = None
+        elif step is not None and step == self._last_step:
+            self._frames[0] = pos  # the same step again (realtime): refresh, do not shift
+        else:
+            f = self._frames
+            self._frames = [pos, f[0], f[1]]
+        self._last_step = step
+
+    # -------------------------------------------------------------- decide
+
+    def decide(
+        self,
+        robot_index: int,
+        positions: Array,
+        pattern: Array,
+        step: int | None = None,
+    ) -> Decision:
+        """Decide robot ``robot_index``'s velocity for this step.
+
+        ``positions``: (n, 2) current poses of the live robots, ordered by robot
+        id; ``robot_index`` is this robot's row. ``pattern``: (n, 2) target
+        pattern (pass the same array object while it does not change: its
+        centred copy is cached). ``step``: the world step these poses belong
+        to; a repeated step refreshes the newest frame instead of shifting the
+        history (realtime mode deciding faster than the world steps).
+        A non-finite brain output, a brain that cannot drive n robots or a
+        brain that raises makes the robot hold still, with ``error`` set.
+        """
+        t0 = time.perf_counter_ns()
+        pos = np.asarray(positions, dtype=np.float64)
+        self._use_pattern(pattern)
+        self._push(pos, step)
+        n = pos.shape[0]
+        i = robot_index
+        brain = self._brain
+        spec = brain.spec
+        slot = -1
+        error = ""
+        bvx = bvy = 0.0
+        cmd: Command | None = None
+        if not spec.accepts_team(n) or self._cc.shape[0] != n:
+            error = ERR_TEAM
+        else:
+            # 1. assign
+            cen = np.add.reduce(pos, 0) / n  # == pos.mean(0), without mean's Python overhead
+            slots = assign_centred(pos - cen, self._cc, self._prev_slots)
+            self._prev_slots = slots
+            slot = int(slots[i])
+            # 2. observe (own row)
+            target = self._cc[slot] + cen  # == slot_positions(pos, C, slots)[i]
+            obs = observe(spec, self._frames, target, (i,), self.world)
+            # 3. act
+            try:
+                bvx, bvy = brain_velocities(brain, obs)[0]
+            except Exception:  # a brain must never take the loop down
+                error = ERR_BRAIN
+            # 4. command
+            if not error:
+                nb = None
+                if self.safety is not None and n >= 2:
+                    L: Rows = pos.tolist()
+                    V = frame_velocities(L, self._frames[1].tolist(), self.world.dt_s)
+                    nb = neighbour_rows(i, L, V)
+                cmd = command(bvx, bvy, nb, self.safety, self.world)
+                if cmd is None:
+                    error = ERR_NONFINITE
+        us = (time.perf_counter_ns() - t0) / 1000.0
+        if cmd is None:
+            return Decision((0.0, 0.0), (bvx, bvy), False, 0.0, us, error, slot)
+        return Decision(cmd.velocity, (bvx, bvy), cmd.changed, cmd.change_mps, us, "", slot)
+
+
+# ---------------------------------------------------------------- E teams
+
+
+def decide_batch(
+    brain: Brain,
+    frames: Array,
+    pattern: Array,
+    prev_slots: IntArray | None = None,
+    safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
+    world: WorldConfig = DEFAULT_WORLD,
+) -> tuple[Array, IntArray, BoolArray]:
+    """Every robot's decision in E teams at once: the evaluation path.
+
+    ``frames``: (E, 3, n, 2) positions at [t, t-1, t-2]. ``pattern``: (n, 2),
+    (1, n, 2) or (E, n, 2). ``prev_slots``: (E, n) assignment of the last step
+    (hysteresis) or None. Returns (velocities (E, n, 2) m/s, slots (E, n),
+    safety_changed (E, n)). Same numbers as :meth:`Controller.decide` robot
+    by robot; a non-finite brain output holds that robot still.
+    """
+    f = np.asarray(frames, dtype=np.float64)
+    E, _, n, _ = f.shape
+    pos, prev = f[:, 0], f[:, 1]
+    c = np.asarray(pattern, dtype=np.float64)
+    C = np.broadcast_to(c[None] if c.ndim == 2 else c, pos.shape)
+    spec = brain.spec
+    if not spec.accepts_team(n):
+        raise ValueError(f"brain spec '{spec.name}' ({spec.n_robots} robots) cannot drive {n}")
+    # 1. assign
+    slots = assign_slots_batch(pos, C, prev_slots)
+    # 2. observe (every row)
+    target = slot_positions(pos, C, slots) if spec.needs_slots else None
+    obs = observe(spec, f, target, None, world)
+    # 3. act
+    act = brain_velocities(brain, obs.reshape(E * n, spec.dim))
+    # 4. command, robot by robot
+    vel = np.zeros((E, n, 2))
+    changed = np.zeros((E, n), dtype=bool)
+    filtering = safety is not None and n >= 2
+    for e in range(E):
+        L: Rows = pos[e].tolist()
+        V = frame_velocities(L, prev[e].tolist(), world.dt_s) if filtering else []
+        for i in range(n):
+            bvx, bvy = act[e * n + i]
+            cmd = command(bvx, bvy, neighbour_rows(i, L, V) if filtering else None, safety, world)
+            if cmd is not None:
+                vel[e, i] = cmd.velocity
+                changed[e, i] = cmd.changed
+    return vel, slots, changed
