@@ -43,7 +43,7 @@ import numpy as np
 
 from runtime.brain import Brain
 from runtime.formation import assign_centred, assign_slots_batch, slot_positions
-from runtime.observation import observe
+from runtime.observation import frame_velocities, general_row, observe
 from runtime.safety import OrcaParams, orca_filter
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -113,14 +113,6 @@ def clamp_speed(vx: float, vy: float, v_max: float) -> tuple[float, float]:
         while max(math.hypot(vx, vy), math.sqrt(vx * vx + vy * vy)) > v_max:
             vx, vy = vx * (1.0 - 1e-15), vy * (1.0 - 1e-15)
     return vx, vy
-
-
-def frame_velocities(L: Rows, Lp: Rows, dt: float) -> Rows:
-    """Every robot's velocity estimated from two frames: (p_t - p_{t-1}) / dt, plain floats.
-
-    The same IEEE operations as the observation builders' ``(p - prev) / dt``.
-    """
-    return [[(a[0] - b[0]) / dt, (a[1] - b[1]) / dt] for a, b in zip(L, Lp, strict=True)]
 
 
 def neighbour_rows(i: int, L: Rows, V: Rows) -> Neighbours:
@@ -211,6 +203,9 @@ class Controller:
         """Forget the history: frames and previous assignment."""
         self._n = -1
         self._frames: list[Array] = []
+        self._Lp: Rows = []  # positions at t-1, plain floats
+        self._L: Rows = []  # positions at t, plain floats
+        self._V: Rows = []  # velocity estimates at t (frame_velocities)
         self._last_step: int | None = None
         self._prev_slots: IntArray | None = None
 
@@ -227,9 +222,7 @@ class Controller:
         self._prev_slots = None
 
     def _use_pattern(self, pattern: Array) -> None:
-        """Cache the centred pattern; the same array object (or equal values) keeps it."""
-        if pattern is self._pattern_obj:
-            return
+        """Cache the centred pattern; equal values in a new array object keep it."""
         old = self._pattern_obj
         if (
             isinstance(old, np.ndarray)
@@ -242,15 +235,21 @@ class Controller:
 
     def _push(self, pos: Array, step: int | None) -> None:
         n = pos.shape[0]
+        lst: Rows = pos.tolist()
         if n != self._n:
             self._n = n
             self._frames = [pos, pos, pos]
+            prev = lst
             self._prev_slots = None
         elif step is not None and step == self._last_step:
             self._frames[0] = pos  # the same step again (realtime): refresh, do not shift
+            prev = self._Lp
         else:
             f = self._frames
             self._frames = [pos, f[0], f[1]]
+            prev = self._L
+        self._L, self._Lp = lst, prev
+        self._V = frame_velocities(lst, prev, self.world.dt_s)
         self._last_step = step
 
     # -------------------------------------------------------------- decide
@@ -275,7 +274,8 @@ class Controller:
         """
         t0 = time.perf_counter_ns()
         pos = np.asarray(positions, dtype=np.float64)
-        self._use_pattern(pattern)
+        if pattern is not self._pattern_obj:
+            self._use_pattern(pattern)
         self._push(pos, step)
         n = pos.shape[0]
         i = robot_index
@@ -293,9 +293,14 @@ class Controller:
             slots = assign_centred(pos - cen, self._cc, self._prev_slots)
             self._prev_slots = slots
             slot = int(slots[i])
-            # 2. observe (own row)
-            target = self._cc[slot] + cen  # == slot_positions(pos, C, slots)[i]
-            obs = observe(spec, self._frames, target, (i,), self.world)
+            # 2. observe (own row): the general builder's one-robot kernel on the
+            # lists kept for the safety filter, else the builder itself
+            if spec.name == "general":
+                sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
+                row = general_row(i, self._L, self._V, (sx, sy), spec.k_neighbours, self.world)
+                obs = np.array([row])
+            else:
+                obs = observe(spec, self._frames, None, (i,), self.world)
             # 3. act
             try:
                 bvx, bvy = brain_velocities(brain, obs)[0]
@@ -305,9 +310,7 @@ class Controller:
             if not error:
                 nb = None
                 if self.safety is not None and n >= 2:
-                    L: Rows = pos.tolist()
-                    V = frame_velocities(L, self._frames[1].tolist(), self.world.dt_s)
-                    nb = neighbour_rows(i, L, V)
+                    nb = neighbour_rows(i, self._L, self._V)
                 cmd = command(bvx, bvy, nb, self.safety, self.world)
                 if cmd is None:
                     error = ERR_NONFINITE

@@ -98,7 +98,7 @@ def centred_cost(Pc: Array, Cc: Array) -> Array:
 
     ``Pc`` (..., n, 2), ``Cc`` (..., n, 2) -> (..., n, n), ``[i, j]`` robot i to point j.
     """
-    d = Pc[..., :, None, :] - Cc[..., None, :, :]
+    d = Pc[..., None, :] - Cc[..., None, :, :]
     d *= d
     out: Array = d[..., 0] + d[..., 1]
     return out

@@ -160,7 +160,10 @@ def general_observation(
     q = np.asarray(prev_pos, dtype=np.float64)
     s = np.asarray(slot_pos, dtype=np.float64)
     if robots is not None and p.ndim == 2 and len(robots) == 1:
-        return _general_row(int(robots[0]), p, q, s, k, world)
+        L = p.tolist()
+        V = frame_velocities(L, q.tolist(), world.dt_s)
+        sx, sy = s.reshape(2).tolist()
+        return np.array([general_row(int(robots[0]), L, V, (sx, sy), k, world)])
     vel = (p - q) / world.dt_s
     n = p.shape[-2]
     sel = np.arange(n) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
@@ -195,29 +198,40 @@ def general_observation(
     return out
 
 
-def _general_row(
-    i: int, pos: Array, prev_pos: Array, slot_pos: Array, k: int, world: WorldConfig
-) -> Array:
-    """One robot's row of :func:`general_observation`, (1, 6 + 5k), in plain floats.
+def frame_velocities(L: list[list[float]], Lp: list[list[float]], dt: float) -> list[list[float]]:
+    """Every robot's velocity estimated from two frames, (p_t - p_{t-1}) / dt, plain floats.
 
-    The robot's own decision: at n ~ 10 a dozen numpy calls cost more than the
-    arithmetic. The same IEEE operations, in the same order, as the batch code
-    above (tests hold every row of the two equal); the velocity estimate is
-    taken only for the robot and its k nearest.
+    ``L``, ``Lp``: positions at t and t-1, [[x, y], ...] (m). The same IEEE
+    operations as the batch builder's ``(p - prev) / dt``.
     """
-    L: list[list[float]] = pos.tolist()
-    Lp: list[list[float]] = prev_pos.tolist()
-    dt = world.dt_s
+    return [[(a[0] - b[0]) / dt, (a[1] - b[1]) / dt] for a, b in zip(L, Lp, strict=True)]
+
+
+def general_row(
+    i: int,
+    L: list[list[float]],
+    V: list[list[float]],
+    slot: tuple[float, float],
+    k: int,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> list[float]:
+    """Robot i's general observation, 6 + 5k plain floats: the one-robot kernel.
+
+    ``L``: positions at t, ``V``: :func:`frame_velocities`, both in robot-id
+    order; ``slot``: robot i's slot in world coordinates (m). What
+    :func:`general_observation` builds for a single robot of a single team, and
+    what the robot calls with the lists it keeps anyway: at n ~ 10 a dozen
+    numpy calls cost more than the arithmetic. The same IEEE operations, in
+    the same order, as the batch code (tests hold every row of the two equal).
+    """
+    n = len(L)
     px, py = L[i]
-    qx, qy = Lp[i]
-    vix, viy = (px - qx) / dt, (py - qy) / dt
-    sx, sy = slot_pos.reshape(2).tolist()
-    svx, svy = sx - px, sy - py
-    reach = world.v_max_mps * dt
+    svx, svy = slot[0] - px, slot[1] - py
+    reach = world.v_max_mps * world.dt_s
     norm = math.sqrt(svx * svx + svy * svy)
     d = norm if norm > reach else reach
+    vix, viy = V[i]
     out = [svx, svy, svx / d, svy / d, vix, viy]
-    n = len(L)
     m = min(k, n - 1)
     if m > 0:
         rel = [(q[0] - px, q[1] - py) for q in L]
@@ -225,11 +239,11 @@ def _general_row(
         d2[i] = math.inf
         # nearest first, ties by index: a stable sort of the ids by distance
         for j in sorted(range(n), key=d2.__getitem__)[:m]:
-            a, b = L[j], Lp[j]
-            out += (*rel[j], (a[0] - b[0]) / dt - vix, (a[1] - b[1]) / dt - viy, 1.0)
+            v = V[j]
+            out += (*rel[j], v[0] - vix, v[1] - viy, 1.0)
     if m < k:
         out += [0.0] * (GENERAL_PER_NEIGHBOUR * (k - m))
-    return np.array([out])
+    return out
 
 
 # ------------------------------------------------------------------ either spec

@@ -102,5 +102,5 @@ def step_reward(
         reward += (cfg.progress_weight / reach) * (dist_before - after_len)
     if cfg.formed_bonus and formed.any():
         reward[:, formed] += cfg.formed_bonus
-    out: Array = reward
+    out: Array = reward.astype(np.float64, copy=False)
     return out

@@ -445,7 +445,7 @@ class BatchWorld:
         episode's collisions and travel."""
         X0 = self._X
         X1, hits, collisions, fallbacks = move(X0, V * self.world.dt_s, self._two_r)
-        if hits is None:
+        if hits is None or collisions is None:
             hits, collisions = self._no_hits, self._no_collisions
         else:
             self.episode_collisions += collisions

@@ -7,7 +7,9 @@ from runtime.formation import assign_slots_batch, slot_positions
 from runtime.observation import (
     ObservationError,
     ObservationSpec,
+    frame_velocities,
     general_observation,
+    general_row,
     neighbours_from_general,
     observe,
     paper_observation,
@@ -115,3 +117,14 @@ def test_spec_round_trip_and_errors() -> None:
         ObservationSpec("paper", n_robots=1)
     with pytest.raises(ObservationError):
         ObservationSpec.from_dict({"version": 1})
+
+
+def test_general_row_is_the_builders_row() -> None:
+    pos, prev, sp = _world(E=1, n=9)
+    full = general_observation(pos, prev, sp, 4)[0]
+    L = pos[0].tolist()
+    V = frame_velocities(L, prev[0].tolist(), 0.1)
+    np.testing.assert_array_equal(np.array(V), (pos[0] - prev[0]) / 0.1)
+    for i in range(9):
+        row = general_row(i, L, V, (float(sp[0, i, 0]), float(sp[0, i, 1])), 4)
+        np.testing.assert_array_equal(row, full[i])
