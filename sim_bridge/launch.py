@@ -52,11 +52,12 @@ from typing import IO, Any
 from runtime.errors import InputError
 from runtime.patterns import pattern_label
 from runtime.zenoh_session import ZenohSetupError, open_session, world_port
-from sim_bridge.brain_choice import pick_brains
+from sim_bridge.brain_choice import BrainChoice, pick_brains
 from sim_bridge.recorder import Recorder
 from sim_bridge.run_results import PhaseResult, Progress, RunResult, result_dict
 from sim_bridge.sim import add_world_arguments, config_from_args
 from sim_bridge.sim_world import SimWorld
+from sim_bridge.world_log import Say
 
 STOP_GRACE_S = 3.0
 ROBOT_SILENCE_EXIT_S = 20.0
@@ -209,6 +210,37 @@ def format_table(phases: list[PhaseResult]) -> str:
     return "\n".join(lines)
 
 
+def draw_figure(record: Path, n_robots: int, patterns: list[str], say: Say) -> Path | None:
+    """The trajectory figure beside the log; None (and a line) when it cannot be drawn."""
+    from sim_bridge.plots import draw_log
+
+    try:
+        names = ", ".join(map(pattern_label, patterns))
+        return draw_log(record, title=f"{n_robots} robots: {names}")
+    except Exception as e:  # a figure is a by-product: never lose the table for it
+        say(f"could not draw the figure: {e}", False)
+        return None
+
+
+def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice], record: Path,
+                 robots_log: Path, png: Path | None, failed_start: bool, out: IO[str]) -> None:
+    """The table and the verdict line, or the one JSON line."""
+    if as_json:
+        d: dict[str, Any] = result_dict(res)
+        d.update(figure=str(png) if png else None, robots_log=str(robots_log),
+                 brains={k: asdict(v) for k, v in brains.items()})
+        print(json.dumps(d), file=out)
+        return
+    if res.phases:
+        print(format_table(res.phases), file=out)
+    tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
+    verdict = {"done": "every pattern formed" if res.all_formed else "NOT every pattern formed",
+               "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
+    if failed_start:
+        verdict = "robots failed to start"
+    print(f"{verdict}: {res.steps} steps in {res.wall_s:.1f} s; {tail}", file=out)
+
+
 # ------------------------------------------------------------------------ run
 
 
@@ -283,30 +315,10 @@ def run(args: argparse.Namespace) -> int:
         for s, h in old.items():
             signal.signal(s, h)
     assert res is not None  # world.run() returned (it raises only on a bug)
-    png: Path | None = None
-    if not args.no_plot and res.phases:
-        from sim_bridge.plots import draw_log
-
-        try:
-            names = ", ".join(map(pattern_label, patterns))
-            png = draw_log(record, title=f"{args.robots} robots: {names}")
-        except Exception as e:  # a figure is a by-product: never lose the table for it
-            say(f"could not draw the figure: {e}")
+    png = None if args.no_plot or not res.phases else draw_figure(record, args.robots,
+                                                                   patterns, say)
     failed_start = bool(robots.failed()) and res.steps == 0
-    if args.json:
-        d: dict[str, Any] = result_dict(res)
-        d.update(figure=str(png) if png else None, robots_log=str(robots_log),
-                 brains={k: asdict(v) for k, v in brains.items()})
-        print(json.dumps(d), file=out)
-    else:
-        if res.phases:
-            print(format_table(res.phases), file=out)
-        tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
-        verdict = {"done": "every pattern formed" if res.all_formed else "NOT every pattern formed",
-                   "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
-        if failed_start:
-            verdict = "robots failed to start"
-        print(f"{verdict}: {res.steps} steps in {res.wall_s:.1f} s; {tail}", file=out)
+    print_report(res, args.json, brains, record, robots_log, png, failed_start, out)
     if failed_start:
         return 1
     if interrupted.is_set() or res.outcome == "interrupted":

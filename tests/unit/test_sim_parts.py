@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from runtime import keys
-from runtime.formation import assign_slots, formation_error, slot_distances
+from runtime.formation import assign_slots, formation_error, formation_error_batch, slot_distances
 from runtime.messages import Command, decode_pose, encode_command
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
@@ -31,6 +31,7 @@ def test_formation_measure_is_the_shared_definition() -> None:
     P = C[::-1] + rng.normal(scale=0.2, size=C.shape) + np.array([3.0, -1.0])
     err, far = formation_measure(P, C)
     assert err == pytest.approx(formation_error(P, C), abs=1e-12)
+    assert err == pytest.approx(formation_error_batch(P[None], C)[0], abs=1e-12)
     assert far == pytest.approx(slot_distances(P, C, assign_slots(P, C)).max(), abs=1e-12)
     err0, far0 = formation_measure(C + np.array([5.0, 5.0]), C)  # a translated pattern is formed
     assert err0 == pytest.approx(0.0, abs=1e-12) and far0 == pytest.approx(0.0, abs=1e-12)
