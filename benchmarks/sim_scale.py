@@ -198,8 +198,9 @@ def _cpu_seconds(pid: int) -> float:
 def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     """A world in this process, n robot processes, lockstep, until ``steps`` steps ran."""
     from runtime.zenoh_session import open_session
+    from sim_bridge.brain_choice import rule_choice
     from sim_bridge.launch import Robots, free_port
-    from sim_bridge.sim import SimConfig, SimWorld, rule_choice
+    from sim_bridge.sim_world import SimConfig, SimWorld
 
     patterns = ["circle", "line", "cross", "heart"] * 50
     swarm = f"bench-{n}-{os.getpid()}"

@@ -67,11 +67,12 @@ def _draw(pts: object, out: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.patches import Circle
 
     p = np.asarray(pts)
     fig, ax = plt.subplots(figsize=(5, 5))
     for x, y in p:
-        ax.add_patch(plt.Circle((x, y), DEFAULT_WORLD.radius_m, color="tab:blue", alpha=0.35))
+        ax.add_patch(Circle((x, y), DEFAULT_WORLD.radius_m, color="tab:blue", alpha=0.35))
     ax.scatter(p[:, 0], p[:, 1], s=6, color="tab:red", zorder=3)
     for i, (x, y) in enumerate(p):
         ax.annotate(str(i), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")

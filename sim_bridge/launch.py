@@ -15,7 +15,7 @@ What it does:
    port, and starts ``--robots`` robot processes (``patternrl robot``) that connect
    to it, each with the first pattern's brain; at every pattern change the world
    swaps in the next pattern's brain where it differs (paper brains);
-3. runs the world in this process (:class:`sim_bridge.sim.SimWorld`), recording the
+3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
    MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
    terminal; the robots' own log lines go to ``<log stem>.robots.log``;
@@ -49,29 +49,16 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
-from runtime.brain import RULE_ASSIGN
+from runtime.errors import InputError
 from runtime.patterns import pattern_label
 from runtime.zenoh_session import ZenohSetupError, open_session, world_port
+from sim_bridge.brain_choice import BrainChoice, pick_brains
 from sim_bridge.recorder import Recorder
-from sim_bridge.sim import (
-    BrainChoice,
-    InputError,
-    PhaseResult,
-    Progress,
-    RunResult,
-    SimWorld,
-    add_world_arguments,
-    brains_from_arg,
-    choose_brains,
-    config_from_args,
-    file_choice,
-    result_dict,
-    rule_choice,
-)
+from sim_bridge.run_results import PhaseResult, Progress, RunResult, result_dict
+from sim_bridge.sim import add_world_arguments, config_from_args
+from sim_bridge.sim_world import SimWorld
+from sim_bridge.world_log import Say
 
-ROOT = Path(__file__).resolve().parents[1]
-GENERAL_BRAIN = "general.onnx"
-"""The shipped general brain's file name in a brains directory: the default brain."""
 STOP_GRACE_S = 3.0
 ROBOT_SILENCE_EXIT_S = 20.0
 
@@ -93,53 +80,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the world's loopback port (default: a free one), e.g. to watch the run")
     p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
     p.add_argument("-v", "--verbose", action="store_true", help="every world message")
-
-
-# ------------------------------------------------------------------------ brains
-
-
-def brain_dirs() -> tuple[Path, ...]:
-    """Where ``--brains auto`` looks: ``exports/`` here, then the project's."""
-    return (Path("exports"), ROOT / "exports")
-
-
-def pick_brains(value: str, patterns: list[str], n: int, prefer: str,
-                search: tuple[Path, ...] | None = None
-                ) -> tuple[dict[str, BrainChoice], str]:
-    """(brain per pattern, a line saying where they came from).
-
-    ``auto``: the general brain (``<dir>/general.onnx``) for every pattern when one
-    of ``search`` (default :func:`brain_dirs`) has it and ``prefer`` is ``general``;
-    else the first of them with a brain for every pattern; else ``rule:assign``.
-    """
-    if value != "auto":
-        chosen = brains_from_arg(value, patterns, n, prefer)
-        assert chosen is not None  # "none" is not offered by the launcher
-        return chosen, f"brains: {value}"
-    dirs = brain_dirs() if search is None else search
-    note = ""
-    if prefer == "general":
-        for d in dirs:
-            g = d / GENERAL_BRAIN
-            if not g.is_file():
-                continue
-            try:
-                choice = file_choice(g, n)
-            except InputError as e:
-                note = f"; {e}"
-                break
-            return ({p: choice for p in patterns},
-                    f"brains: {choice.label} from {d}, the general brain, for every pattern")
-    for d in dirs:
-        if d.is_dir():
-            chosen, missing = choose_brains(d, patterns, n, prefer)
-            if not missing:
-                return chosen, f"brains: {d} (a brain for every pattern){note}"
-            if chosen:
-                return ({p: rule_choice() for p in patterns},
-                        f"brains: {RULE_ASSIGN} ({d} has none for {', '.join(missing)}){note}")
-    return ({p: rule_choice() for p in patterns},
-            f"brains: {RULE_ASSIGN} (no trained brains found){note}")
 
 
 # ------------------------------------------------------------------------ robots
@@ -270,6 +210,37 @@ def format_table(phases: list[PhaseResult]) -> str:
     return "\n".join(lines)
 
 
+def draw_figure(record: Path, n_robots: int, patterns: list[str], say: Say) -> Path | None:
+    """The trajectory figure beside the log; None (and a line) when it cannot be drawn."""
+    from sim_bridge.plots import draw_log
+
+    try:
+        names = ", ".join(map(pattern_label, patterns))
+        return draw_log(record, title=f"{n_robots} robots: {names}")
+    except Exception as e:  # a figure is a by-product: never lose the table for it
+        say(f"could not draw the figure: {e}", False)
+        return None
+
+
+def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice], record: Path,
+                 robots_log: Path, png: Path | None, failed_start: bool, out: IO[str]) -> None:
+    """The table and the verdict line, or the one JSON line."""
+    if as_json:
+        d: dict[str, Any] = result_dict(res)
+        d.update(figure=str(png) if png else None, robots_log=str(robots_log),
+                 brains={k: asdict(v) for k, v in brains.items()})
+        print(json.dumps(d), file=out)
+        return
+    if res.phases:
+        print(format_table(res.phases), file=out)
+    tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
+    verdict = {"done": "every pattern formed" if res.all_formed else "NOT every pattern formed",
+               "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
+    if failed_start:
+        verdict = "robots failed to start"
+    print(f"{verdict}: {res.steps} steps in {res.wall_s:.1f} s; {tail}", file=out)
+
+
 # ------------------------------------------------------------------------ run
 
 
@@ -311,9 +282,7 @@ def run(args: argparse.Namespace) -> int:
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         interrupted.set()
-        world.stop_event.set()
-        with world._cond:
-            world._cond.notify_all()
+        world.stop()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     watcher_stop = threading.Event()
@@ -324,9 +293,7 @@ def run(args: argparse.Namespace) -> int:
             if bad and world.step == 0:
                 say("robot(s) failed to start: " + ", ".join(f"{r} (exit {c})" for r, c in bad)
                     + f"; see {robots_log}")
-                world.stop_event.set()
-                with world._cond:
-                    world._cond.notify_all()
+                world.stop()
                 return
 
     first = brains[patterns[0]].ref
@@ -344,37 +311,14 @@ def run(args: argparse.Namespace) -> int:
         progress.clear()
         robots.stop()
         rec.close()
-        try:
-            session.close()  # type: ignore[no-untyped-call]
-        except Exception:
-            pass
+        session.close()  # type: ignore[no-untyped-call]
         for s, h in old.items():
             signal.signal(s, h)
     assert res is not None  # world.run() returned (it raises only on a bug)
-    png: Path | None = None
-    if not args.no_plot and res.phases:
-        from sim_bridge.plots import draw_log
-
-        try:
-            names = ", ".join(map(pattern_label, patterns))
-            png = draw_log(record, title=f"{args.robots} robots: {names}")
-        except Exception as e:  # a figure is a by-product: never lose the table for it
-            say(f"could not draw the figure: {e}")
+    png = None if args.no_plot or not res.phases else draw_figure(record, args.robots,
+                                                                   patterns, say)
     failed_start = bool(robots.failed()) and res.steps == 0
-    if args.json:
-        d: dict[str, Any] = result_dict(res)
-        d.update(figure=str(png) if png else None, robots_log=str(robots_log),
-                 brains={k: asdict(v) for k, v in brains.items()})
-        print(json.dumps(d), file=out)
-    else:
-        if res.phases:
-            print(format_table(res.phases), file=out)
-        tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
-        verdict = {"done": "every pattern formed" if res.all_formed else "NOT every pattern formed",
-                   "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
-        if failed_start:
-            verdict = "robots failed to start"
-        print(f"{verdict}: {res.steps} steps in {res.wall_s:.1f} s; {tail}", file=out)
+    print_report(res, args.json, brains, record, robots_log, png, failed_start, out)
     if failed_start:
         return 1
     if interrupted.is_set() or res.outcome == "interrupted":

@@ -27,10 +27,11 @@ from typing import Any
 from runtime.brain import BrainError, BrainManifest, load_brain
 from runtime.patterns import PatternError
 from runtime.world_config import DEFAULT_WORLD
-from trainer.config import ALGOS, PAPER_LRS, TrainConfig
+from trainer.checkpoints import InitError
+from trainer.config import ALGOS, PAPER_LRS, TrainConfig, obs_spec_for, reward_for
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
-from trainer.train import InitError, RunPlan, artefact_paths, obs_spec_for, reward_for, train
+from trainer.train import RunPlan, artefact_paths, train
 from trainer.training_world import PAPER_REWARD, check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0

@@ -30,6 +30,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Literal
 
+from runtime.observation import ObservationSpec
+from trainer.training_world import RewardConfig
+
 Algo = Literal["pattern-rl", "ppo"]
 ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")
 
@@ -150,3 +153,15 @@ class TrainConfig:
 
 PAPER_LRS = {"lr_policy": 1e-4, "lr_value": 2e-4}
 """The paper's learning rates (Table I)."""
+
+
+def obs_spec_for(cfg: TrainConfig) -> ObservationSpec:
+    """The observation a run builds: ``paper`` for its team size, else ``general``."""
+    if cfg.obs == "paper":
+        return ObservationSpec("paper", n_robots=cfg.n_robots)
+    return ObservationSpec("general", k_neighbours=cfg.k_neighbours)
+
+
+def reward_for(cfg: TrainConfig) -> RewardConfig:
+    """The world's reward constants with the run's overrides."""
+    return RewardConfig(**cfg.reward)

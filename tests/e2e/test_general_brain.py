@@ -83,8 +83,8 @@ def test_general_brain_forms_an_unseen_shape_over_zenoh(procs: Any, tmp_path: Pa
 
 def test_launcher_runs_the_general_brain_by_default(tmp_path: Path, kit: Any,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    from sim_bridge.launch import GENERAL_BRAIN, pick_brains
-    from sim_bridge.sim import InputError
+    from runtime.errors import InputError
+    from sim_bridge.brain_choice import GENERAL_BRAIN, pick_brains
 
     ex = tmp_path / "exports"
     ex.mkdir()

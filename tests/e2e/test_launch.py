@@ -193,7 +193,7 @@ def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -
 
 
 def test_brains_are_chosen_by_manifest(tmp_path: Path, kit: Any) -> None:
-    from sim_bridge.sim import choose_brains
+    from sim_bridge.brain_choice import choose_brains
 
     for name, obs, pattern, n in [("circle-10-paper", "paper", "circle", 10),
                                   ("line-10-paper", "paper", "line", 10),

@@ -12,13 +12,24 @@ import torch
 from runtime.brain import BrainManifest, load_brain
 from runtime.observation import ObservationSpec
 from runtime.world_config import DEFAULT_WORLD
-from trainer.config import TrainConfig
+from trainer.checkpoints import (
+    InitError,
+    best_record,
+    is_better,
+    load_checkpoint,
+    new_best,
+    save_checkpoint,
+    start_state,
+)
+from trainer.config import TrainConfig, obs_spec_for, reward_for
+from trainer.curve import CURVE_FIELDS, curve_row, write_curve
 from trainer.evaluate import evaluate_brain
 from trainer.export import write_brain
 from trainer.networks import Agent, ObsNormaliser, gaussian_kl, gaussian_logprob
 from trainer.storage import RolloutBatch, discounted_returns, gae
-from trainer.train import RunPlan, artefact_paths, train
-from trainer.update import adapt_kl_coef, minibatches, policy_loss
+from trainer.train import RunPlan, artefact_paths, collect_rollout, train
+from trainer.training_world import BatchWorld
+from trainer.update import UpdateStats, adapt_kl_coef, minibatches, policy_loss
 
 # ------------------------------------------------------------------ returns
 
@@ -246,6 +257,65 @@ def _tiny_run(tmp_path, cfg: TrainConfig = TINY, **plan_kw):
         **plan_kw,
     )
     return train(cfg, plan)
+
+
+def test_rollout_fills_memory_and_replays_with_the_same_generator() -> None:
+    cfg = TINY.with_(seed=3)
+    E, N, T = cfg.n_envs, cfg.n_robots, cfg.rollout_steps
+    spec = obs_spec_for(cfg)
+    agent = Agent(spec.dim, cfg, TINY_WORLD.v_max_mps)
+
+    def once():
+        bw = BatchWorld(E, N, "circle", spec, world=TINY_WORLD, reward=reward_for(cfg), seed=1)
+        gen = torch.Generator().manual_seed(5)
+        return collect_rollout(agent, bw, bw.observe(), cfg, gen, TINY_WORLD.v_max_mps)
+
+    a, b = once(), once()
+    assert a.batch.obs.shape == (T * E * N, spec.dim) and a.batch.actions.shape == (T * E * N, 2)
+    assert a.obs.shape == (E, N, spec.dim)
+    assert len(a.returns) == len(a.success)
+    torch.testing.assert_close(a.batch.actions, b.batch.actions)
+    torch.testing.assert_close(a.batch.advantages, b.batch.advantages)
+
+
+def test_checkpoint_round_trip_and_the_best_rule(tmp_path) -> None:
+    cfg = TINY.with_(seed=2)
+    spec = obs_spec_for(cfg)
+    st = start_state(cfg, spec, TINY_WORLD.v_max_mps, None, None)
+    assert st.iteration == 0 and st.best["iteration"] == -1 and st.value_warmup == 0
+    assert is_better(0.0, math.nan, new_best(st.agent))  # any evaluation beats none
+    st.best = best_record(0.5, 40.0, 3, st.agent)
+    assert is_better(0.5, 30.0, st.best) and not is_better(0.5, 40.0, st.best)
+    assert not is_better(0.25, 10.0, st.best)
+    st.iteration, st.episodes, st.kl_coef = 3, 17, 0.7
+    st.curve = [{"iteration": 3, "stage": 0, "episodes": 17}]
+    path = tmp_path / "run.ckpt.pt"
+    save_checkpoint(path, st, cfg, spec, wall_s=1.5, stage=0)
+    ck = load_checkpoint(path)
+    back = start_state(TrainConfig.from_dict(ck["config"]), spec, TINY_WORLD.v_max_mps, ck, None)
+    assert (back.iteration, back.episodes, back.kl_coef, back.wall0_s) == (3, 17, 0.7, 1.5)
+    assert back.best["iteration"] == 3 and back.curve == st.curve
+    assert torch.equal(back.gen.get_state(), st.gen.get_state())
+    for k, v in st.agent.state_dict().items():
+        torch.testing.assert_close(back.agent.state_dict()[k], v)
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(InitError, match="cannot read checkpoint"):
+        load_checkpoint(tmp_path / "bad.pt")
+
+
+def test_curve_rows_and_csv(tmp_path) -> None:
+    stats = UpdateStats(*([0.5] * len(UpdateStats._fields)))
+    row = curve_row(iteration=1, stage=0, pattern="circle", episodes=4, agent_steps=64,
+                    wall_s=0.1, recent_returns=[1.0, 3.0], recent_success=[True, False],
+                    eval_success=math.nan, eval_steps=math.nan, stats=stats, kl_coef=0.2,
+                    lr_scale=1.0)
+    assert set(row) == set(CURVE_FIELDS)
+    assert row["mean_reward"] == 2.0 and row["train_success"] == 0.5
+    write_curve(tmp_path / "c.csv", [row])
+    header, line = (tmp_path / "c.csv").read_text().splitlines()
+    assert header.split(",") == list(CURVE_FIELDS)
+    cells = dict(zip(CURVE_FIELDS, line.split(","), strict=True))
+    assert cells["eval_success"] == "" and cells["mean_reward"] == "2"
 
 
 def _curve_without_wall(rows):

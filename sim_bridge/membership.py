@@ -1,0 +1,152 @@
+"""Robots joining and leaving the world.
+
+Robots are followed by their liveliness tokens (``patternrl/<swarm>/alive/<id>``):
+Zenoh's thread reports each token to the :class:`Roster`; the world's thread then
+applies the changes between steps (:class:`Membership`): the robots alive at the
+start take the seeded starts (uniform in the arena, pairwise
+>= ``world.start_separation_m``) in id order; a robot that joins later is placed
+at a free seeded spot, one that leaves is removed; both are logged (``join`` and
+``leave`` events). The world then resizes the pattern to the live count.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from runtime.world_config import WorldConfig
+from sim_bridge.physics import PhysicsError, PhysicsWorld, sample_starts
+
+if TYPE_CHECKING:
+    from sim_bridge.world_link import WorldLink
+    from sim_bridge.world_log import WorldLog
+
+ROSTER_POLL_S = 0.2
+"""Longest wait between checks of a stop while waiting for robots."""
+
+
+class Roster:
+    """Which robots are alive, as their tokens say; fed from Zenoh's threads.
+
+    Shares ``cond`` with the command collection, whose wait stops expecting a
+    robot once it is :attr:`gone`.
+    """
+
+    def __init__(self, cond: threading.Condition) -> None:
+        self._cond = cond
+        self.alive: set[int] = set()
+        """Robots whose token is up (read under ``cond``)."""
+        self.gone: set[int] = set()
+        """Robots whose token went down and did not come back (read under ``cond``)."""
+        self._changes: queue.SimpleQueue[tuple[bool, int]] = queue.SimpleQueue()
+
+    def saw(self, rid: int, joined: bool) -> None:
+        """A robot's token came up (``joined``) or went down."""
+        with self._cond:
+            if joined:
+                self.alive.add(rid)
+                self.gone.discard(rid)
+            else:
+                self.alive.discard(rid)
+                self.gone.add(rid)
+            self._changes.put((joined, rid))
+            self._cond.notify_all()
+
+    def wait_for(self, n: int, timeout_s: float, stop: threading.Event) -> int:
+        """Wait until ``n`` robots are alive, ``timeout_s`` passed or ``stop``; how many are."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while len(self.alive) < n and not stop.is_set():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(min(left, ROSTER_POLL_S))
+            return len(self.alive)
+
+    def alive_ids(self) -> list[int]:
+        with self._cond:
+            return sorted(self.alive)
+
+    def changes(self) -> Iterator[tuple[bool, int]]:
+        """(joined, robot) for every change not taken yet, oldest first."""
+        while True:
+            try:
+                yield self._changes.get_nowait()
+            except queue.Empty:
+                return
+
+
+class Membership:
+    """Robots entering and leaving the world between steps: physics, pose keys and log."""
+
+    def __init__(
+        self,
+        roster: Roster,
+        physics: PhysicsWorld,
+        link: WorldLink,
+        log: WorldLog,
+        rng: np.random.Generator,
+        arena_m: float,
+        world: WorldConfig,
+    ) -> None:
+        self.roster = roster
+        self.physics = physics
+        self.link = link
+        self.log = log
+        self.rng = rng
+        self.arena_m = arena_m
+        self.w = world
+
+    def wait_for_robots(self, n: int, timeout_s: float, stop: threading.Event) -> bool:
+        """True once ``n`` robots are alive, or at least two when ``timeout_s`` passed."""
+        alive = self.roster.wait_for(n, timeout_s, stop)
+        if alive < n:
+            self.log.say(f"{alive} of {n} robots alive after {timeout_s:g} s")
+        return alive >= 2 and not stop.is_set()
+
+    def place_start(self, n: int) -> None:
+        """The robots alive now take the seeded starts of ``n`` (or more) robots, in id order."""
+        for _ in self.roster.changes():  # the joins already known: placed here
+            pass
+        ids = self.roster.alive_ids()
+        starts = sample_starts(max(len(ids), n), self.arena_m, self.rng, self.w)
+        for rid, (x, y) in zip(ids, starts, strict=False):
+            self._add(rid, float(x), float(y), at_start=True)
+
+    def apply(self) -> tuple[int, int]:
+        """The joins and leaves since the last step: (joined, left)."""
+        joined = left = 0
+        for came, rid in self.roster.changes():
+            present = rid in self.physics.ids
+            if came and not present:
+                try:
+                    avoid = self.physics.positions()
+                    (x, y), = sample_starts(1, self.arena_m, self.rng, self.w, avoid=avoid)
+                except PhysicsError as e:
+                    self.log.say(f"robot {rid} cannot join: {e}")
+                    continue
+                self._add(rid, float(x), float(y), at_start=False)
+                joined += 1
+            elif not came and present:
+                self._remove(rid)
+                left += 1
+        return joined, left
+
+    def _add(self, rid: int, x: float, y: float, at_start: bool) -> None:
+        self.physics.add_robot(rid, x, y)
+        self.link.add_robot(rid, x, y)
+        n = len(self.physics.ids)
+        self.log.event("join", robot=rid, x=round(x, 6), y=round(y, 6), n_live=n)
+        self.log.say(f"robot {rid} joined at ({x:.2f}, {y:.2f}); {n} live", at_start)
+
+    def _remove(self, rid: int) -> None:
+        self.physics.remove_robot(rid)
+        self.link.remove_robot(rid)
+        self.log.robot_removed(rid)
+        self.log.event("leave", robot=rid, n_live=len(self.physics.ids))
+        self.log.say(f"robot {rid} left; {len(self.physics.ids)} live")

@@ -1,0 +1,76 @@
+"""What a run of the world returns: one :class:`PhaseResult` per pattern, the run's outcome.
+
+A :class:`PhaseResult` is also the ``phase_end`` event on the log, field for field;
+:func:`result_dict` is the ``--json`` line of ``patternrl sim`` and ``patternrl launch``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+
+@dataclass
+class PhaseResult:
+    """How one pattern of the sequence went (also the ``phase_end`` event)."""
+
+    index: int
+    pattern: str
+    n_robots: int
+    formed: bool
+    steps: int
+    step_limit: int
+    lower_bound_steps: int
+    travel_m: float
+    lower_bound_travel_m: float
+    collisions: int
+    contacts: int
+    min_separation_m: float
+    deadline_misses: int
+    late_commands: int
+    final_error_m: float
+    brain: str
+    brain_ids: list[str]
+    joins: int
+    leaves: int
+    start_step: int
+    end_step: int
+    wall_s: float
+
+
+@dataclass
+class RunResult:
+    """A whole run: the phases, the outcome and the log path."""
+
+    phases: list[PhaseResult]
+    outcome: str
+    """``done``, ``interrupted`` or ``no robots``."""
+    steps: int
+    wall_s: float
+    record: str | None
+    latencies_ms: list[float] = field(default_factory=list, repr=False)
+
+    @property
+    def all_formed(self) -> bool:
+        return self.outcome == "done" and all(p.formed for p in self.phases)
+
+
+@dataclass
+class Progress:
+    """What a progress line shows, after each step."""
+
+    phase: int
+    n_phases: int
+    pattern: str
+    step: int
+    phase_step: int
+    formation_error_m: float
+    n_live: int
+    deadline_misses: int
+
+
+def result_dict(res: RunResult) -> dict[str, Any]:
+    """The run as the ``--json`` line prints it."""
+    return {"outcome": res.outcome, "all_formed": res.all_formed, "steps": res.steps,
+            "wall_s": res.wall_s, "record": res.record,
+            "phases": [asdict(p) for p in res.phases]}

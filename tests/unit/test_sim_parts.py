@@ -1,0 +1,119 @@
+"""The world's parts on their own: phase measures, the roster, brain labels and the Zenoh link."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+from typing import Any
+
+import numpy as np
+import pytest
+
+from runtime import keys
+from runtime.formation import assign_slots, formation_error, formation_error_batch, slot_distances
+from runtime.messages import Command, decode_pose, encode_command
+from runtime.patterns import make_pattern
+from runtime.world_config import DEFAULT_WORLD
+from runtime.zenoh_session import open_session
+from sim_bridge.brain_choice import BrainChoice, rule_choice
+from sim_bridge.brain_swaps import phase_brain_label
+from sim_bridge.launch import free_port
+from sim_bridge.membership import Roster
+from sim_bridge.phase_tally import PhaseTally, formation_measure
+from sim_bridge.world_link import WorldLink
+
+W = DEFAULT_WORLD
+
+
+def test_formation_measure_is_the_shared_definition() -> None:
+    rng = np.random.default_rng(0)
+    C = make_pattern("heart", 7, W)
+    P = C[::-1] + rng.normal(scale=0.2, size=C.shape) + np.array([3.0, -1.0])
+    err, far = formation_measure(P, C)
+    assert err == pytest.approx(formation_error(P, C), abs=1e-12)
+    assert err == pytest.approx(formation_error_batch(P[None], C)[0], abs=1e-12)
+    assert far == pytest.approx(slot_distances(P, C, assign_slots(P, C)).max(), abs=1e-12)
+    err0, far0 = formation_measure(C + np.array([5.0, 5.0]), C)  # a translated pattern is formed
+    assert err0 == pytest.approx(0.0, abs=1e-12) and far0 == pytest.approx(0.0, abs=1e-12)
+
+
+def test_phase_tally_counts_a_collision_once_per_encounter() -> None:
+    C = make_pattern("line", 2, W)
+    gap = W.min_separation_m
+    ids = [4, 9]
+    xs = (3.0, 0.5, 0.4, 3.0, 3.0, 0.5)  # in units of the minimum separation
+    at = [np.array([[0.0, 0.0], [x * gap, 0.0]]) for x in xs]
+    tally = PhaseTally()
+    tally.start(at[0], C)
+    new = [tally.step(ids, a, b, C, [], [9], W).new_collisions
+           for a, b in itertools.pairwise(at)]
+    # overlapping over three steps in a row is one encounter; apart, then close again: a second
+    assert new == [[(4, 9)], [], [], [], [(4, 9)]]
+    assert tally.collisions == 2 and tally.deadline_misses == 5
+    assert tally.min_separation_m == pytest.approx(0.4 * gap)
+    assert tally.travel_m == pytest.approx(7.7 * gap)
+    assert not tally.formed(W)
+
+
+def test_phase_brain_label() -> None:
+    choice = BrainChoice("b.onnx", "a" * 64, "general", "b.onnx (aaaaaaaa)")
+    assert phase_brain_label(choice, ["a" * 64]) == "b.onnx (aaaaaaaa)"
+    assert phase_brain_label(choice, ["a" * 64, "b" * 64]).endswith("(not in every robot)")
+    assert phase_brain_label(None, ["rule:assign", "c" * 64]) == "rule:assign, cccccccc"
+    assert phase_brain_label(None, []) == "unknown"
+    assert rule_choice().kind == "rule"
+
+
+def test_roster_follows_tokens_and_hands_over_changes_once() -> None:
+    cond = threading.Condition(threading.Lock())
+    roster = Roster(cond)
+    stop = threading.Event()
+    roster.saw(2, joined=True)
+    roster.saw(0, joined=True)
+    roster.saw(2, joined=False)
+    assert roster.alive_ids() == [0] and roster.gone == {2}
+    assert list(roster.changes()) == [(True, 2), (True, 0), (False, 2)]
+    assert list(roster.changes()) == []
+    roster.saw(2, joined=True)
+    assert roster.gone == set() and roster.wait_for(2, 0.0, stop) == 2
+    stop.set()  # a stop ends the wait at once
+    assert roster.wait_for(5, 60.0, stop) == 2
+
+
+@pytest.mark.timeout(60)
+def test_world_link_exchanges_a_step_with_a_robot() -> None:
+    swarm, port = "unit-link", free_port()
+    world = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+    robot = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"], listen=[])
+    events: list[tuple[str, dict[str, Any]]] = []
+    link = WorldLink(world, swarm, lockstep=True, recorder=None,
+                     event=lambda kind, **f: events.append((kind, f)))
+    stop = threading.Event()
+
+    def answer(sample: Any) -> None:  # the robot: each pose answered with a command
+        pose = decode_pose(sample.payload.to_bytes())
+        robot.put(keys.cmd_key(swarm, 1), encode_command(
+            Command(1, pose.step, 0.25, -0.5, "rule:assign", False, 0.0, 12.0)))
+
+    try:
+        with link:
+            link.open()  # a second open declares nothing more
+            sub = robot.declare_subscriber(keys.pose_key(swarm, 1), answer)
+            token = robot.liveliness().declare_token(keys.alive_key(swarm, 1))
+            assert link.roster.wait_for(1, 20.0, stop) == 1
+            link.add_robot(1, 0.5, 0.5)
+            pos = np.array([[1.0, 2.0]])
+            v, missed = link.exchange(0, W.dt_s, [1], pos, 20.0, stop)
+            assert missed == [] and v.tolist() == [[0.25, -0.5]]
+            assert link.brains() == {1: "rule:assign"} and link.decision_us == [12.0]
+            robot.put(keys.cmd_key(swarm, 1), b"\x00garbage")  # dropped and counted
+            link.put_pattern(b"pattern")
+            token.undeclare()
+            sub.undeclare()
+            v, missed = link.exchange(1, W.dt_s, [1], pos, 20.0, stop)  # a gone robot: no wait
+            assert missed == [1] and v.tolist() == [[0.0, 0.0]]
+        link.close()  # closing twice is harmless
+        assert link.malformed == 1 and events[0][0] == "malformed"
+    finally:
+        robot.close()  # type: ignore[no-untyped-call]
+        world.close()  # type: ignore[no-untyped-call]
