@@ -29,13 +29,30 @@ class Commands:
     v: Array
     """(m, 2) m/s"""
     safety_changed: BoolArray
-    brain: list[str]
-    """brain id of each command"""
+    brain_index: IntArray
+    """(m,) index into :attr:`brain_ids` of the brain that decided each command"""
+    brain_ids: list[str]
+    """the brain ids on the log (one run has one or a few: stored once)"""
+
+    @property
+    def brain(self) -> list[str]:
+        """Brain id of each command."""
+        return [self.brain_ids[i] for i in self.brain_index.tolist()]
+
+    def brain_counts(self, sel: BoolArray) -> dict[str, int]:
+        """Brain id -> commands it decided among ``sel`` (m,), in order of first appearance."""
+        codes, first, counts = np.unique(self.brain_index[sel], return_index=True,
+                                         return_counts=True)
+        out: dict[str, int] = {}
+        for k in np.argsort(first, kind="stable").tolist():
+            name = self.brain_ids[int(codes[k])]
+            out[name] = out.get(name, 0) + int(counts[k])
+        return out
 
     @staticmethod
     def empty() -> Commands:
         return Commands(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)),
-                        np.zeros(0, bool), [])
+                        np.zeros(0, bool), np.zeros(0, np.int64), [])
 
 
 @dataclass
@@ -100,7 +117,8 @@ def decode_commands(raw: list[bytes], key_rid: list[int]) -> tuple[Commands, int
     else:
         for k, n in enumerate(lengths):
             by_len.setdefault(n, []).append(k)
-    cols: list[tuple[IntArray, IntArray, Array, BoolArray, list[str], IntArray]] = []
+    cols: list[tuple[IntArray, IntArray, Array, BoolArray, IntArray, IntArray]] = []
+    brain_ids: list[str] = []
     bad = 0
     for length, ks in by_len.items():
         blen = length - COMMAND_HEAD_DTYPE.itemsize
@@ -120,21 +138,21 @@ def decode_commands(raw: list[bytes], key_rid: list[int]) -> tuple[Commands, int
         order = np.asarray(ks, np.int64)[good]
         if blen:
             names, inv = np.unique(rec["brain"], return_inverse=True)
-            text = [bytes(b).decode("utf-8", "replace") for b in names]
-            brains = [text[i] for i in inv.tolist()]
+            index = inv.astype(np.int64).reshape(-1) + len(brain_ids)
+            brain_ids += [bytes(b).decode("utf-8", "replace") for b in names]
         else:
-            brains = [""] * len(rec)
+            index = np.full(len(rec), len(brain_ids), np.int64)
+            brain_ids.append("")
         cols.append((rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
                      np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64),
-                     rec["safety_changed"].astype(bool), brains, order))
+                     rec["safety_changed"].astype(bool), index, order))
     if not cols:
         return Commands.empty(), bad
     order = np.argsort(np.concatenate([c[5] for c in cols]), kind="stable")
-    brains_all = [b for c in cols for b in c[4]]
     return Commands(
         np.concatenate([c[0] for c in cols])[order], np.concatenate([c[1] for c in cols])[order],
         np.concatenate([c[2] for c in cols])[order], np.concatenate([c[3] for c in cols])[order],
-        [brains_all[i] for i in order.tolist()],
+        np.concatenate([c[4] for c in cols])[order], brain_ids,
     ), bad
 
 

@@ -1,4 +1,4 @@
-"""The log's layout (channels by key) and its phase slicing, on logs written here."""
+"""The log's layout (channels by key), its command columns and its phase slicing."""
 
 from __future__ import annotations
 
@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from runtime import keys
-from runtime.messages import PatternMsg, Pose, encode_pattern, encode_pose
+from runtime.messages import Command, PatternMsg, Pose, encode_command, encode_pattern, encode_pose
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
+from sim_bridge.log_columns import decode_commands
 from sim_bridge.log_layout import (
     EVENTS_TOPIC,
     WIRE_ENCODING,
@@ -83,3 +84,22 @@ def test_phases_sliced_from_the_wire_without_events(tmp_path: Path) -> None:
     line, circle = phases_of(data)
     assert (line.name, line.start_step, circle.name, circle.start_step) == ("line", 0, "circle", 3)
     assert [p.version for p in line.patterns] == [1] and line.end_step is None
+
+
+def test_command_columns_keep_file_order_across_brain_id_lengths() -> None:
+    brains = ["b" * 64, "rule:assign", "", "b" * 64, "rule:assign", "b" * 64]
+    raw = [encode_command(Command(k % 3, k, 0.1 * k, -0.1 * k, b, k == 1, 0.0, 5.0))
+           for k, b in enumerate(brains)]
+    raw.insert(2, raw[0][:-1])  # a command whose length says its brain id is cut short
+    rid = [k % 3 for k in range(len(brains))]
+    rid.insert(2, 0)
+    cmds, bad = decode_commands(raw, rid)
+    assert bad == 1
+    assert cmds.step.tolist() == list(range(6)) and cmds.brain == brains
+    assert cmds.v[:, 0].tolist() == [0.1 * k for k in range(6)]
+    assert cmds.safety_changed.tolist() == [False, True, False, False, False, False]
+    everything = np.ones(6, bool)
+    assert list(cmds.brain_counts(everything).items()) == [
+        ("b" * 64, 3), ("rule:assign", 2), ("", 1)]
+    assert cmds.brain_counts(cmds.step >= 4) == {"rule:assign": 1, "b" * 64: 1}
+    assert list(cmds.brain_counts(cmds.step >= 4)) == ["rule:assign", "b" * 64]
