@@ -38,7 +38,7 @@ heart then star. When the world has run ``--kill-step`` steps of the heart (a
 watcher on the swarm follows the poses), two robots are killed by PID
 (SIGKILL); the world sees their liveliness go and publishes the pattern resized
 to the 10 left. The result is read from the run's MCAP alone
-(:func:`sim_bridge.analysis.report_log`): who left and when, whether and in how
+(:func:`sim_bridge.log_report.report_log`): who left and when, whether and in how
 many steps each phase formed, collisions and the smallest separation, and which
 brains decided (and that no brain was swapped).
 
@@ -297,7 +297,7 @@ class StepWatcher:
 def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...],
                 kill_step: int, seed: int, timeout_s: float = 240.0) -> dict[str, Any]:
     """Launch world + robots, kill ``kill`` by PID at ``kill_step``, analyse the MCAP."""
-    from sim_bridge.analysis import report_log
+    from sim_bridge.log_report import report_log
 
     star = write_pattern(out_dir / "patterns" / f"n{robots}", "star", robots)
     log = out_dir / "dropout.mcap"
@@ -391,7 +391,7 @@ def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...
 
 
 def _events(log: Path) -> list[dict[str, Any]]:
-    from sim_bridge.analysis import read_log
+    from sim_bridge.log_reader import read_log
 
     return list(read_log(log).events)
 

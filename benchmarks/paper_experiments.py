@@ -453,8 +453,7 @@ class WorldRun:
 
 def launch_once(run: WorldRun, pattern: str, robots: int, seed: int, logs: Path) -> dict[str, Any]:
     """One ``patternrl launch`` (world + robot processes over Zenoh); its phase and log."""
-    from runtime.messages import decode_command
-    from sim_bridge.recorder import iter_log
+    from sim_bridge.log_reader import read_log
 
     log = logs / f"fig6-{run.tag}-{pattern}.mcap"
     cmd = [sys.executable, "-m", "patternrl.cli", "launch", "--robots", str(robots),
@@ -468,12 +467,8 @@ def launch_once(run: WorldRun, pattern: str, robots: int, seed: int, logs: Path)
         raise RuntimeError(f"launch failed ({p.returncode}): {p.stderr.strip()[-600:]}")
     d = json.loads(lines[-1])
     (phase,) = d["phases"]
-    changed = total = 0
-    for m in iter_log(log):
-        if m.schema == "patternrl.Command":
-            c = decode_command(m.data)
-            total += 1
-            changed += c.safety_changed
+    cmds = read_log(log).commands
+    total, changed = len(cmds.step), int(cmds.safety_changed.sum())
     return {"phase": phase, "log": log, "wall_s": wall, "exit": p.returncode,
             "commands": total, "filter_share": changed / max(total, 1),
             "brain": run.brain if run.brain == RULE_ASSIGN else _rel(run.brain),
@@ -490,8 +485,9 @@ def fig6_brain(pattern: str, brains_dir: Path, fallback: str) -> str:
 def run_fig6(
     fallback: str, brains_dir: Path, robots: int, seed: int, logs: Path, png: Path
 ) -> list[dict[str, Any]]:
+    from sim_bridge.log_reader import read_log
+    from sim_bridge.log_report import analyse
     from sim_bridge.plots import draw_trajectories, phase_tracks
-    from sim_bridge.recorder import read_run
 
     logs.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
@@ -509,7 +505,8 @@ def run_fig6(
             _say(f"  fig6 {label:<15} {pattern:<9} formed={ph['formed']} steps {ph['steps']} "
                  f"(bound {ph['lower_bound_steps']}), collisions {ph['collisions']} "
                  f"({r['wall_s']:.1f} s)")
-            for tr in phase_tracks(read_run(r["log"])):
+            data = read_log(r["log"])
+            for tr in phase_tracks(analyse(data), data):
                 tr.pattern = f"{pattern}, {label}"
                 tracks.append(tr)
     draw_trajectories(tracks, png, title=f"{robots} robots from the same seeded starts "

@@ -15,9 +15,11 @@ step limit, 25 phases).
 Rows, each the median of ``--repeats`` runs over the same file:
 
 * ``mcap NonSeekingReader``: mcap's own reader iterating every message (reference);
-* ``analysis.iter_messages``: the replay's reader alone;
-* ``read_log``: reading and decoding (poses, commands, events, metrics columns);
-* ``read_log + analyse``: the whole report, every figure recomputed, the goal row;
+* ``log_file.iter_messages``: the replay's reader alone (:mod:`sim_bridge.log_file`);
+* ``read_log``: reading and decoding (poses, commands, events, metrics columns;
+  :mod:`sim_bridge.log_reader`);
+* ``read_log + analyse``: the whole report, every figure recomputed
+  (:mod:`sim_bridge.log_report`), the goal row;
 * ``of which lower bounds``: the part of that spent in ``runtime.formation.lower_bounds``
   (one call per phase, independent of the message count), from the same runs.
 
@@ -56,8 +58,10 @@ from runtime.messages import (
 )
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge import analysis
-from sim_bridge.recorder import Recorder, iter_log, scene_update
+from sim_bridge.log_file import iter_messages
+from sim_bridge.log_reader import read_log
+from sim_bridge.log_report import analyse
+from sim_bridge.recorder import Recorder, scene_update
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 GOAL_MSGS_PER_S = 100_000.0
@@ -163,32 +167,36 @@ def main(argv: list[str] | None = None) -> int:
         path = args.log if args.log is not None else Path(tmp) / "bench.mcap"
         t = time.perf_counter()
         if args.reuse and path.is_file():
-            total = sum(1 for _ in analysis.iter_messages(path))
+            total = sum(1 for _ in iter_messages(path))
         else:
             total = write_log(path, args.steps, args.robots, args.phase_steps)
         write_s = time.perf_counter() - t
 
         def mcap_only() -> None:
-            for _ in iter_log(path):
-                pass
+            from mcap.reader import NonSeekingReader
+
+            with open(path, "rb") as f:
+                for _ in NonSeekingReader(f, record_size_limit=256 << 20).iter_messages(
+                        log_time_order=False):
+                    pass
 
         def reader_only() -> None:
-            for _ in analysis.iter_messages(path):
+            for _ in iter_messages(path):
                 pass
 
         lb_runs: list[float] = []
 
         def full() -> None:
-            rep = analysis.analyse(analysis.read_log(path))
+            rep = analyse(read_log(path))
             lb_runs.append(rep.timing["lower_bounds_s"])
 
-        data = analysis.read_log(path)  # warm-up, and the facts
-        report = analysis.analyse(data)
+        data = read_log(path)  # warm-up, and the facts
+        report = analyse(data)
         assert report.messages == total, (report.messages, total)
         times = {}
         for what, fn in (("mcap NonSeekingReader", mcap_only),
-                         ("analysis.iter_messages", reader_only),
-                         ("read_log", lambda: analysis.read_log(path)),
+                         ("log_file.iter_messages", reader_only),
+                         ("read_log", lambda: read_log(path)),
                          ("read_log + analyse", full)):
             times[what] = _median_time(fn, args.repeats)
         times[f"of which lower bounds ({len(report.phases)} phases)"] = statistics.median(lb_runs)

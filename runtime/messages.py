@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "COMMAND_HEAD_DTYPE",
     "MAX_BRAIN_ID_CHARS",
     "MAX_MANIFEST_BYTES",
     "MAX_ONNX_BYTES",
@@ -43,6 +44,7 @@ __all__ = [
     "MAX_REQUEST_ID_BYTES",
     "MAX_STATUS_BYTES",
     "MAX_TARGET_ROBOTS",
+    "POSE_DTYPE",
     "VERSION",
     "BrainMsg",
     "Buffer",
@@ -53,6 +55,7 @@ __all__ = [
     "Pose",
     "Status",
     "Tag",
+    "command_dtype",
     "decode",
     "decode_brain",
     "decode_command",
@@ -211,6 +214,19 @@ _HEADER: Final = struct.Struct("<BB")
 _LEN32: Final = struct.Struct("<I")
 
 
+def _columns(fmt: struct.Struct, names: tuple[str, ...]) -> np.dtype[np.void]:
+    """The numpy structured dtype that views packed ``fmt`` records as named columns.
+
+    Built from the struct format itself, so a batch of payloads (``np.frombuffer``) reads
+    exactly what :mod:`struct` writes: a wire change is an edit of the format only.
+    """
+    codes = fmt.format.lstrip("<")
+    assert fmt.format.startswith("<") and len(codes) == len(names)
+    dt = np.dtype([(name, "<" + code) for name, code in zip(names, codes, strict=True)])
+    assert dt.itemsize == fmt.size
+    return dt
+
+
 # -- Pose -----------------------------------------------------------------------------------
 
 
@@ -233,6 +249,9 @@ class Pose:
 
 
 _POSE: Final = struct.Struct("<BBIQdddddI")
+POSE_DTYPE: Final = _columns(_POSE, ("tag", "version", "robot_id", "step", "time_s", "x", "y",
+                                     "vx", "vy", "n_live"))
+"""A pose payload as one numpy record: ``np.frombuffer(b"".join(payloads), POSE_DTYPE)``."""
 _new: Final = object.__new__
 _POSE_FLOATS: Final = ("time_s", "x", "y", "vx", "vy")
 
@@ -299,6 +318,19 @@ class Command:
 
 
 _COMMAND: Final = struct.Struct("<BBIQddBddH")
+COMMAND_HEAD_DTYPE: Final = _columns(_COMMAND, (
+    "tag", "version", "robot_id", "step", "vx", "vy", "safety_changed", "safety_change_mps",
+    "decision_us", "brain_len"))
+"""The fixed part of a command payload as one numpy record (the brain id follows it)."""
+
+
+def command_dtype(brain_len: int) -> np.dtype[np.void]:
+    """A whole command payload whose brain id is ``brain_len`` bytes: the head, then ``brain``."""
+    if brain_len == 0:
+        return COMMAND_HEAD_DTYPE
+    return np.dtype([*COMMAND_HEAD_DTYPE.descr, ("brain", f"S{brain_len}")])
+
+
 _MAX_BRAIN_ID_BYTES: Final = 4 * MAX_BRAIN_ID_CHARS
 
 

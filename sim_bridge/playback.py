@@ -13,7 +13,9 @@ Zenoh traffic, and are not played.
   (``pose``, ``cmd``, ``status``, ``pattern``, ``brain``: the key's last chunk).
 * ``start_s``: skip the first seconds of the log (from its first message).
 * ``swarm``: republish under another swarm name (``patternrl/<old>/...`` ->
-  ``patternrl/<swarm>/...``), so a live swarm is not disturbed.
+  ``patternrl/<swarm>/...``, :func:`runtime.keys.with_swarm`), so a live swarm is
+  not disturbed; a recorded key that is not one of the project's keys cannot be
+  moved to another swarm and is not played then.
 * ``loops``: play the log this many times (0: until stopped).
 * ``wait_subscribers_s``: before the first message, wait up to this long until
   some subscriber matches one of the keys (Zenoh drops what nobody hears).
@@ -32,9 +34,10 @@ from pathlib import Path
 from typing import Any
 
 from runtime import keys
-from sim_bridge.analysis import WIRE_ENCODING, LogError, Recovery, iter_messages
+from sim_bridge.log_file import LogError, Recovery, iter_messages
+from sim_bridge.log_layout import WIRE_ENCODING
 
-KINDS = ("pose", "cmd", "status", "pattern", "brain")
+KINDS = (keys.POSE, keys.CMD, keys.STATUS, keys.PATTERN, keys.BRAIN)
 
 
 @dataclass
@@ -80,7 +83,8 @@ def _topic_filter(topics: Sequence[str] | None) -> Callable[[str, str], bool]:
             raise LogError(f"--topics {t!r}: not a key expression nor one of {', '.join(KINDS)}")
 
     def keep(recorded: str, played: str) -> bool:
-        if recorded.rsplit("/", 1)[-1] in kinds:
+        parsed = keys.parse_key(recorded)
+        if parsed is not None and parsed.kind in kinds:
             return True
         for e in exprs:
             for k in (recorded, played):
@@ -94,15 +98,12 @@ def _topic_filter(topics: Sequence[str] | None) -> Callable[[str, str], bool]:
     return keep
 
 
-def _rename(topic: str, swarm: str | None) -> tuple[str, str]:
-    """(swarm the key belongs to, the key to play on)."""
-    parts = topic.split("/")
-    if len(parts) >= 3 and parts[0] == keys.PREFIX:
-        old = parts[1]
-        if swarm is not None:
-            parts[1] = swarm
-        return old, "/".join(parts)
-    return "", topic
+def _rename(topic: str, swarm: str | None) -> tuple[str, str | None]:
+    """(swarm the key belongs to or "", the key to play on or None: not playable in ``swarm``)."""
+    k = keys.parse_key(topic)
+    if k is None:
+        return "", topic if swarm is None else None
+    return k.swarm, topic if swarm is None else keys.with_swarm(topic, swarm)
 
 
 def load_recording(
@@ -138,7 +139,7 @@ def load_recording(
             k = -1
             if ch.message_encoding == WIRE_ENCODING:
                 old, new = _rename(ch.topic, swarm)
-                if keep(ch.topic, new):
+                if new is not None and keep(ch.topic, new):
                     if old:
                         swarms.add(old)
                     if new in played:

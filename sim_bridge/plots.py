@@ -8,8 +8,8 @@ crosses. The panel title says whether the pattern formed, in how many steps,
 and the lower bound.
 
 Input is a list of :class:`PhaseTrack`, built from a log by
-:func:`phase_tracks` (so ``patternrl launch`` and a replay draw the same
-picture from the same MCAP).
+:func:`phase_tracks` from the report's phases (so ``patternrl launch`` and a
+replay draw the same picture from the same MCAP, with the same figures).
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ import numpy as np
 from runtime.formation import centred
 from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-from sim_bridge.recorder import RecordedRun
+from sim_bridge.log_reader import LogData
+from sim_bridge.log_report import RunReport
 
 
 @dataclass
@@ -45,33 +46,24 @@ class PhaseTrack:
     targets: Array
 
 
-def phase_tracks(run: RecordedRun) -> list[PhaseTrack]:
-    """One :class:`PhaseTrack` per ``phase_end`` event of a recorded run."""
-    out = []
-    pts: Array | None = None
-    for ph in run.events:
-        if ph.get("kind") == "pattern":  # the pattern in force, in log order
-            pts = np.asarray(ph["points"], dtype=np.float64)
-        if ph.get("kind") != "phase_end":
+def phase_tracks(report: RunReport, data: LogData) -> list[PhaseTrack]:
+    """One :class:`PhaseTrack` per phase of ``report`` with recorded poses (``data``'s)."""
+    fr = data.frames
+    tracks = []
+    for k, ph in enumerate(report.phases):
+        rows = fr.rows(ph.start_step, ph.end_step)
+        if len(rows) == 0:
             continue
-        s0, s1 = int(ph["start_step"]), int(ph["end_step"])
-        steps = [s for s in range(s0, s1 + 1) if s in run.poses]
-        if not steps:
-            continue
-        ids = sorted({rid for s in steps for rid in run.poses[s]})
-        col = {rid: k for k, rid in enumerate(ids)}
-        track = np.full((len(steps), len(ids), 2), np.nan)
-        for t, s in enumerate(steps):
-            for rid, p in run.poses[s].items():
-                track[t, col[rid]] = (p.x, p.y)
-        final_ids = sorted(run.poses[steps[-1]])
-        final = np.array([[run.poses[steps[-1]][r].x, run.poses[steps[-1]][r].y]
-                          for r in final_ids])
-        targets = (centred(pts) + final.mean(axis=0)) if pts is not None and len(pts) == len(
-            final) else np.empty((0, 2))
-        out.append(PhaseTrack(str(ph["pattern"]), bool(ph["formed"]), int(ph["steps"]),
-                              int(ph["lower_bound_steps"]), ids, track, targets))
-    return out
+        pts = report.pattern_at(k, ph.end_step)
+        pts = pts if pts is not None else np.zeros((0, 2))
+        cols = np.nonzero(fr.present[rows].any(axis=0))[0]
+        track = fr.xy[rows][:, cols]
+        final = track[-1][~np.isnan(track[-1]).any(axis=1)]
+        targets = (centred(pts) + final.mean(axis=0)) if len(pts) == len(final) and len(
+            pts) else np.empty((0, 2))
+        tracks.append(PhaseTrack(ph.pattern, ph.formed, ph.steps, ph.lower_bound_steps or 0,
+                                 [int(fr.ids[c]) for c in cols], track, targets))
+    return tracks
 
 
 def _tint(rgb: tuple[float, float, float], f: float) -> tuple[float, float, float]:
@@ -154,8 +146,11 @@ def draw_trajectories(
 
 def draw_log(log: str | Path, out: str | Path | None = None, **kw: Any) -> Path:
     """Read an MCAP log and draw its trajectory figure (default: ``<log stem>.png`` beside it)."""
-    from sim_bridge.recorder import read_run
+    from sim_bridge.log_reader import read_log
+    from sim_bridge.log_report import analyse
 
     log = Path(log)
-    tracks = phase_tracks(read_run(log))
+    data = read_log(log)
+    tracks = phase_tracks(analyse(data), data)
+    kw.setdefault("world", data.world)
     return draw_trajectories(tracks, out if out is not None else log.with_suffix(".png"), **kw)

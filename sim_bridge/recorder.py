@@ -1,182 +1,46 @@
-"""The MCAP log of a run: everything the world saw and did, time-stamped.
+"""Writes the MCAP log of a run: everything the world saw and did, time-stamped.
 
-Channel layout (``log_time`` = wall clock, ns since the Unix epoch;
-``K`` = ``patternrl/<swarm>``):
-
-=========================  ===================  ===========================  ==============
-topic                      message encoding     schema (schema encoding)     what
-=========================  ===================  ===========================  ==============
-``K/robot/<id>/pose``      ``patternrl-wire``   ``patternrl.Pose``           world -> robot
-``K/robot/<id>/cmd``       ``patternrl-wire``   ``patternrl.Command``        robot -> world
-``K/robot/<id>/status``    ``patternrl-wire``   ``patternrl.Status``         robot health
-``K/pattern``              ``patternrl-wire``   ``patternrl.Pattern``        target pattern
-``K/brain``                ``patternrl-wire``   ``patternrl.Brain``          brain swaps
-other keys under ``K``     ``patternrl-wire``   none (schema id 0)           raw bytes
-``/world/events``          ``json``             ``patternrl.Event``          see below
-``/world/metrics``         ``json``             ``patternrl.StepMetrics``    one per step
-``/world/scene``           ``json``             ``foxglove.SceneUpdate``     one per step
-=========================  ===================  ===========================  ==============
-
-Wire schemas have schema encoding ``patternrl-wire``; the JSON ones ``jsonschema``.
-Wire channels hold the Zenoh payloads byte for byte, as :mod:`runtime.messages`
-encodes them (``patternrl-wire``: a tag byte, a version byte, little-endian
-``struct`` fields; the schema record's data is that module's layout description).
-One channel per key, so a robot's poses are one topic.
-
-``/world/events`` (one JSON object each, ``kind`` plus ``step`` and ``time_s``):
-``run_start`` (configuration), ``pattern`` (a pattern published: version, name,
-points, reason ``phase`` or ``resize``), ``phase_start``, ``phase_end`` (the
-phase's results: formed, steps, lower bounds, travel, collisions, min separation,
-deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
-``leave``, ``collision`` (robot pairs that overlapped during the step),
-``contact`` (pairs the physics saw start touching, walls included),
-``deadline_miss`` (robots that had not answered step ``for_step`` in time), ``malformed``
-(a payload that did not decode), ``run_end`` (outcome).
-
-``/world/scene``: one ``foxglove.SceneUpdate`` per step, frame ``world``: an
-entity per robot (entity id = the robot id, a cylinder of diameter 2R at its
-position), an entity ``targets`` (a small sphere at each target slot, placed on
-the team's centroid) and ``arena`` (the walls as a line loop). A robot that left
-is deleted by id. The log opens in Foxglove's 3D panel without custom panels.
-
-Durability: chunks are small (``chunk_size`` bytes) and the writer is flushed at
-least every ``flush_period_s``, so a writer killed with SIGKILL leaves a file
-that :func:`iter_log` (mcap's non-seeking reader) reads up to its last complete
-chunk. A finished log also has the summary section and reads with any reader.
+The channels, encodings and schemas are :mod:`sim_bridge.log_layout`'s; this
+module writes them (:class:`Recorder`) and builds the Foxglove scene of a step
+(:func:`scene_update`). Durability: chunks are small (``chunk_size`` bytes) and
+the writer is flushed at least every ``flush_period_s``, so a writer killed with
+SIGKILL leaves a file that :mod:`sim_bridge.log_reader` reads up to its last
+complete chunk. A finished log also has the summary section and reads with any
+reader.
 """
 
 from __future__ import annotations
 
 import json
-import struct
 import threading
 import time
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, Any, Final
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
-from runtime import messages as wire
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-
-WIRE_ENCODING: Final = "patternrl-wire"
-EVENTS_TOPIC: Final = "/world/events"
-METRICS_TOPIC: Final = "/world/metrics"
-SCENE_TOPIC: Final = "/world/scene"
-SCENE_FRAME: Final = "world"
-
-# key suffix -> schema name of the wire message on that key
-_WIRE_SCHEMAS: Final = {
-    "pose": "patternrl.Pose",
-    "cmd": "patternrl.Command",
-    "status": "patternrl.Status",
-    "pattern": "patternrl.Pattern",
-    "brain": "patternrl.Brain",
-}
-
-EVENT_SCHEMA: Final[dict[str, Any]] = {
-    "title": "patternrl.Event",
-    "description": "Something the world did or saw; fields beyond these depend on kind.",
-    "type": "object",
-    "properties": {
-        "kind": {"type": "string", "description": "run_start, pattern, phase_start, phase_end, "
-                 "brain_swap, join, leave, collision, contact, deadline_miss, malformed, run_end"},
-        "step": {"type": "integer", "description": "world step when it happened"},
-        "time_s": {"type": "number", "description": "simulated time, step * dt (s)"},
-    },
-    "required": ["kind", "step", "time_s"],
-}
-
-METRICS_SCHEMA: Final[dict[str, Any]] = {
-    "title": "patternrl.StepMetrics",
-    "description": "Per-step figures of the formation, after the step's physics.",
-    "type": "object",
-    "properties": {
-        "step": {"type": "integer"},
-        "time_s": {"type": "number"},
-        "phase": {"type": "integer", "description": "index of the pattern in the sequence"},
-        "pattern": {"type": "string"},
-        "pattern_version": {"type": "integer"},
-        "phase_step": {"type": "integer", "description": "steps since the phase began"},
-        "n_live": {"type": "integer"},
-        "formation_error_m": {"type": "number"},
-        "max_slot_distance_m": {"type": "number"},
-        "min_separation_m": {"type": "number"},
-        "collisions": {"type": "integer", "description": "robot pairs overlapping this step"},
-        "contacts": {"type": "integer", "description": "contacts the physics saw begin"},
-        "deadline_misses": {"type": "integer", "description": "robots that held still"},
-        "wall_ms": {"type": "number", "description": "wall time of the step (ms)"},
-    },
-    "required": ["step", "time_s", "n_live", "formation_error_m", "min_separation_m"],
-}
-
-
-def _obj(title: str, props: dict[str, Any]) -> dict[str, Any]:
-    return {"title": title, "type": "object", "properties": props, "required": list(props)}
-
-
-def _scene_schema() -> dict[str, Any]:
-    """JSON schema of ``foxglove.SceneUpdate``, the parts this log writes.
-
-    Names and fields follow Foxglove's published schema; the primitive arrays this
-    log leaves empty are declared as arrays of objects.
-    """
-    num = {"type": "number"}
-    time_ = _obj("time", {"sec": {"type": "integer", "minimum": 0},
-                          "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}})
-    dur = _obj("duration", {"sec": {"type": "integer"},
-                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}})
-    vec3 = _obj("foxglove.Vector3", {"x": num, "y": num, "z": num})
-    quat = _obj("foxglove.Quaternion", {"x": num, "y": num, "z": num, "w": num})
-    pose = _obj("foxglove.Pose", {"position": vec3, "orientation": quat})
-    color = _obj("foxglove.Color", {"r": num, "g": num, "b": num, "a": num})
-    point3 = _obj("foxglove.Point3", {"x": num, "y": num, "z": num})
-    any_arr = {"type": "array", "items": {"type": "object"}}
-    sphere = _obj("foxglove.SpherePrimitive", {"pose": pose, "size": vec3, "color": color})
-    cylinder = _obj("foxglove.CylinderPrimitive", {
-        "pose": pose, "size": vec3, "bottom_scale": num, "top_scale": num, "color": color})
-    line = _obj("foxglove.LinePrimitive", {
-        "type": {"title": "foxglove.LineType", "oneOf": [
-            {"title": "LINE_STRIP", "const": 0}, {"title": "LINE_LOOP", "const": 1},
-            {"title": "LINE_LIST", "const": 2}]},
-        "pose": pose, "thickness": num, "scale_invariant": {"type": "boolean"},
-        "points": {"type": "array", "items": point3}, "color": color,
-        "colors": {"type": "array", "items": color},
-        "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}}})
-    text = _obj("foxglove.TextPrimitive", {
-        "pose": pose, "billboard": {"type": "boolean"}, "font_size": num,
-        "scale_invariant": {"type": "boolean"}, "color": color, "text": {"type": "string"}})
-    kv = _obj("foxglove.KeyValuePair", {"key": {"type": "string"}, "value": {"type": "string"}})
-    entity = _obj("foxglove.SceneEntity", {
-        "timestamp": time_, "frame_id": {"type": "string"}, "id": {"type": "string"},
-        "lifetime": dur, "frame_locked": {"type": "boolean"},
-        "metadata": {"type": "array", "items": kv},
-        "arrows": any_arr, "cubes": any_arr,
-        "spheres": {"type": "array", "items": sphere},
-        "cylinders": {"type": "array", "items": cylinder},
-        "lines": {"type": "array", "items": line},
-        "triangles": any_arr,
-        "texts": {"type": "array", "items": text},
-        "models": any_arr,
-    })
-    deletion = _obj("foxglove.SceneEntityDeletion", {
-        "timestamp": time_,
-        "type": {"title": "foxglove.SceneEntityDeletionType", "oneOf": [
-            {"title": "MATCHING_ID", "const": 0}, {"title": "ALL", "const": 1}]},
-        "id": {"type": "string"}})
-    out = _obj("foxglove.SceneUpdate", {
-        "deletions": {"type": "array", "items": deletion},
-        "entities": {"type": "array", "items": entity}})
-    out["description"] = "An update to the entities displayed in a 3D scene"
-    return out
-
-
-SCENE_SCHEMA: Final = _scene_schema()
+from sim_bridge.log_layout import (
+    EVENTS_TOPIC,
+    JSON_ENCODING,
+    JSON_SCHEMA_ENCODING,
+    JSON_TOPICS,
+    METRICS_TOPIC,
+    SCENE_FRAME,
+    SCENE_TOPIC,
+    WIRE_ENCODING,
+    WIRE_SCHEMA_DATA,
+    wire_schema,
+)
+from sim_bridge.recorded_run import (
+    LogMessage,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
+    LogScan,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
+    RecordedRun,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
+    iter_log,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
+    read_run,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
+)
 
 _IDENTITY: Final = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 
@@ -269,9 +133,8 @@ class Recorder:
         self._closed = False
         self.messages_written = 0
         self._file.flush()  # the header is on disk before anything else happens
-        self._json_channel(EVENTS_TOPIC, EVENT_SCHEMA)
-        self._json_channel(METRICS_TOPIC, METRICS_SCHEMA)
-        self._json_channel(SCENE_TOPIC, SCENE_SCHEMA)
+        for topic, schema in JSON_TOPICS:
+            self._json_channel(topic, schema)
 
     # ------------------------------------------------------------------ channels
 
@@ -283,8 +146,9 @@ class Recorder:
         return sid
 
     def _json_channel(self, topic: str, schema: dict[str, Any]) -> int:
-        sid = self._schema(schema["title"], "jsonschema", json.dumps(schema).encode())
-        cid = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        sid = self._schema(schema["title"], JSON_SCHEMA_ENCODING, json.dumps(schema).encode())
+        cid = self._writer.register_channel(topic=topic, message_encoding=JSON_ENCODING,
+                                            schema_id=sid)
         self._channels[topic] = cid
         return cid
 
@@ -292,11 +156,10 @@ class Recorder:
         cid = self._channels.get(key)
         if cid is not None:
             return cid
-        schema_name = _WIRE_SCHEMAS.get(key.rsplit("/", 1)[-1])
+        schema_name = wire_schema(key)
         sid = 0
         if schema_name is not None:
-            layout = (wire.__doc__ or "").encode()
-            sid = self._schema(schema_name, WIRE_ENCODING, layout)
+            sid = self._schema(schema_name, WIRE_ENCODING, WIRE_SCHEMA_DATA)
         cid = self._writer.register_channel(
             topic=key, message_encoding=WIRE_ENCODING, schema_id=sid,
             metadata={"source": "zenoh"})
@@ -366,104 +229,3 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-# ---------------------------------------------------------------------- reading
-
-
-@dataclass
-class LogMessage:
-    """One recorded message."""
-
-    topic: str
-    schema: str
-    log_time_ns: int
-    data: bytes
-
-
-@dataclass
-class LogScan:
-    """How far a read got: ``complete`` is False for a log cut short (a killed writer)."""
-
-    messages: int = 0
-    complete: bool = True
-    error: str = ""
-
-
-def iter_log(path: str | Path, scan: LogScan | None = None) -> Iterator[LogMessage]:
-    """Every message of a log in file order, with mcap's non-seeking reader.
-
-    A log whose writer was killed ends in an incomplete chunk or record: iteration
-    stops there (after the last complete chunk) and ``scan.complete`` turns False
-    with the reason in ``scan.error``; nothing is raised for that.
-    """
-    scan = scan if scan is not None else LogScan()
-    with open(path, "rb") as f:
-        reader = NonSeekingReader(f, record_size_limit=256 << 20)
-        it = reader.iter_messages(log_time_order=False)
-        while True:
-            try:
-                schema, channel, msg = next(it)
-            except StopIteration:
-                break
-            except (McapError, EOFError, ValueError, OSError, struct.error) as e:
-                scan.complete = False
-                scan.error = f"{type(e).__name__}: {e}"[:200]
-                break
-            scan.messages += 1
-            yield LogMessage(channel.topic, schema.name if schema else "", msg.log_time, msg.data)
-    if scan.complete and not _has_footer(Path(path)):
-        scan.complete = False
-        scan.error = scan.error or "no footer: the writer did not finish"
-
-
-def _has_footer(path: Path) -> bool:
-    with open(path, "rb") as f:
-        f.seek(0, 2)
-        if f.tell() < 8:
-            return False
-        f.seek(-8, 2)
-        return f.read(8) == b"\x89MCAP0\r\n"
-
-
-@dataclass
-class RecordedRun:
-    """A log decoded: what analysis, the launcher's table and the figure need."""
-
-    events: list[dict[str, Any]] = field(default_factory=list)
-    metrics: list[dict[str, Any]] = field(default_factory=list)
-    poses: dict[int, dict[int, wire.Pose]] = field(default_factory=dict)
-    """step -> robot id -> the pose the world published at that step."""
-    patterns: list[wire.PatternMsg] = field(default_factory=list)
-    commands: int = 0
-    malformed: int = 0
-    topics: dict[str, int] = field(default_factory=dict)
-    scan: LogScan = field(default_factory=LogScan)
-
-    def events_of(self, kind: str) -> list[dict[str, Any]]:
-        """Events of one kind, in order."""
-        return [e for e in self.events if e.get("kind") == kind]
-
-
-def read_run(path: str | Path) -> RecordedRun:
-    """Decode a log (complete or cut short) into a :class:`RecordedRun`."""
-    run = RecordedRun()
-    for m in iter_log(path, run.scan):
-        run.topics[m.topic] = run.topics.get(m.topic, 0) + 1
-        try:
-            if m.topic == EVENTS_TOPIC:
-                run.events.append(json.loads(m.data))
-            elif m.topic == METRICS_TOPIC:
-                run.metrics.append(json.loads(m.data))
-            elif m.schema == "patternrl.Pose":
-                p = wire.decode_pose(m.data)
-                run.poses.setdefault(p.step, {})[p.robot_id] = p
-            elif m.schema == "patternrl.Pattern":
-                pm = wire.decode_pattern(m.data)
-                if not run.patterns or run.patterns[-1].version != pm.version:
-                    run.patterns.append(pm)
-            elif m.schema == "patternrl.Command":
-                run.commands += 1
-        except (wire.MessageError, ValueError):
-            run.malformed += 1
-    return run

@@ -10,7 +10,7 @@
     patternrl replay run.mcap --play --rate 2 --swarm viewer
     patternrl replay cut.mcap --repair fixed.mcap   a killed writer's log, finished
 
-Every figure comes from the log alone (:mod:`sim_bridge.analysis` says how each
+Every figure comes from the log alone (:mod:`sim_bridge.log_report` says how each
 is computed); a log cut short is read up to its last complete chunk and the
 report says how much was recovered. Pictures: ``--plot`` the paths (the paper's
 Fig. 6 style, :mod:`sim_bridge.plots`), ``--error-plot`` formation error and
@@ -37,22 +37,13 @@ from types import FrameType
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from runtime.errors import InputError
-from sim_bridge.analysis import (
-    LogData,
-    LogError,
-    RunReport,
-    analyse,
-    counterfactual,
-    format_compare,
-    format_counterfactual,
-    format_report,
-    read_log,
-    recovery_line,
-    repair,
-)
+from sim_bridge.counterfactual import counterfactual, format_counterfactual
+from sim_bridge.log_file import LogError, repair
+from sim_bridge.log_reader import LogData, read_log
+from sim_bridge.log_report import RunReport, analyse
+from sim_bridge.report_text import format_compare, format_report, recovery_line
 
 MAX_FRAMES_DEFAULT = 300
 
@@ -60,35 +51,11 @@ MAX_FRAMES_DEFAULT = 300
 # ------------------------------------------------------------------------ pictures
 
 
-def _phase_rows(report: RunReport, data: LogData, k: int) -> NDArray[np.int64]:
-    """Rows of the frames table in phase k, from its start to its (recomputed) end."""
-    ph = report.phases[k]
-    fr = data.frames
-    lo = int(np.searchsorted(fr.steps, ph.start_step))
-    hi = int(np.searchsorted(fr.steps, ph.end_step, side="right"))
-    return np.arange(lo, hi)
-
-
 def draw_paths(report: RunReport, data: LogData, out: Path) -> Path:
     """The paths, one panel per phase, drawn by :func:`sim_bridge.plots.draw_trajectories`."""
-    from runtime.formation import centred
-    from sim_bridge.plots import PhaseTrack, draw_trajectories
+    from sim_bridge.plots import draw_trajectories, phase_tracks
 
-    fr = data.frames
-    tracks = []
-    for k, ph in enumerate(report.phases):
-        rows = _phase_rows(report, data, k)
-        if len(rows) == 0:
-            continue
-        pts = report.pattern_at(k, ph.end_step)
-        pts = pts if pts is not None else np.zeros((0, 2))
-        cols = np.nonzero(fr.present[rows].any(axis=0))[0]
-        track = fr.xy[rows][:, cols]
-        final = track[-1][~np.isnan(track[-1]).any(axis=1)]
-        targets = (centred(pts) + final.mean(axis=0)) if len(pts) == len(final) and len(
-            pts) else np.empty((0, 2))
-        tracks.append(PhaseTrack(ph.pattern, ph.formed, ph.steps, ph.lower_bound_steps or 0,
-                                 [int(fr.ids[c]) for c in cols], track, targets))
+    tracks = phase_tracks(report, data)
     title = f"{Path(report.path).name}" + ("" if report.finished else " (log cut short)")
     return draw_trajectories(tracks, out, title=title, world=data.world)
 
@@ -171,8 +138,8 @@ def draw_animation(report: RunReport, data: LogData, out: Path, fps: int = 10,
         rows.append(len(fr.steps) - 1)
     # each row's phase (a phase's last step is its own, not the next one's first)
     phase_of: dict[int, int] = {}
-    for k in range(len(report.phases)):
-        for r in _phase_rows(report, data, k).tolist():
+    for k, ph in enumerate(report.phases):
+        for r in fr.rows(ph.start_step, ph.end_step).tolist():
             phase_of.setdefault(r, k)
     valid = fr.xy[~np.isnan(fr.xy).any(axis=-1)]
     lo, hi = valid.min(axis=0) - 3 * w.radius_m, valid.max(axis=0) + 3 * w.radius_m

@@ -17,16 +17,12 @@ from mcap.reader import make_reader
 
 from runtime import messages as wire
 from runtime.world_config import DEFAULT_WORLD
+from sim_bridge.log_file import iter_messages
+from sim_bridge.log_layout import EVENTS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
+from sim_bridge.log_reader import read_log
 from sim_bridge.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
-from sim_bridge.recorder import (
-    EVENTS_TOPIC,
-    METRICS_TOPIC,
-    SCENE_TOPIC,
-    Recorder,
-    iter_log,
-    read_run,
-    scene_update,
-)
+from sim_bridge.recorded_run import read_run
+from sim_bridge.recorder import Recorder, scene_update
 
 R = DEFAULT_WORLD.radius_m
 ROOT = Path(__file__).resolve().parents[2]
@@ -181,18 +177,27 @@ def test_recorder_round_trip(tmp_path: Path) -> None:
         "patternrl-wire"
     )
 
-    run = read_run(path)
-    assert run.scan.complete and run.malformed == 0
-    assert run.poses[7][2] == pose
-    assert run.commands == 1
-    assert run.patterns == [pat]
-    assert run.events == [
+    data = read_log(path)
+    assert data.recovery.finished and data.malformed == 0
+    fr = data.frames
+    assert fr.steps.tolist() == [7] and fr.ids.tolist() == [2]
+    assert fr.xy[fr.row(7), 0].tolist() == [pose.x, pose.y]
+    assert data.commands.robot_id.tolist() == [2] and data.commands.brain == ["abc123"]
+    assert data.commands.v.tolist() == [[cmd.vx, cmd.vy]]
+    assert [m.msg for m in data.patterns] == [pat]
+    assert data.events == [
         {"kind": "join", "step": 0, "time_s": 0.0, "robot": 2, "x": 1.5, "y": 2.5}
     ]
-    assert run.metrics[0]["formation_error_m"] == 0.5
-    raw = [m for m in iter_log(path) if m.topic == "patternrl/s/something/else"]
-    assert raw[0].data == b"\x00raw" and raw[0].schema == ""
-    scene = json.loads(next(m.data for m in iter_log(path) if m.topic == SCENE_TOPIC))
+    assert data.metrics[0]["formation_error_m"] == 0.5
+    other = "patternrl/s/something/else"
+    assert data.topics[other] == 1
+    raw = [(c, p) for c, _, _, _, p in iter_messages(path) if c.topic == other]
+    assert raw[0][1] == b"\x00raw" and raw[0][0].schema_name == ""
+    # the per-step view of the same log decodes each message to its wire object
+    run = read_run(path)
+    assert run.scan.complete and run.malformed == 0 and run.commands == 1
+    assert run.poses[7][2] == pose and run.patterns == [pat]
+    scene = json.loads(next(p for c, _, _, _, p in iter_messages(path) if c.topic == SCENE_TOPIC))
     robot = next(e for e in scene["entities"] if e["id"] == "2")
     cyl = robot["cylinders"][0]
     assert cyl["size"]["x"] == pytest.approx(2 * R)
@@ -241,11 +246,11 @@ def test_sigkilled_writer_leaves_a_readable_log(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
     assert proc.returncode == -signal.SIGKILL
-    run = read_run(path)
-    assert not run.scan.complete  # no footer: cut short
-    steps = sorted(run.poses)
+    data = read_log(path)
+    assert not data.recovery.finished  # no footer: cut short
+    steps = data.frames.steps.tolist()
     assert len(steps) >= 301  # everything up to the explicit flush, at least
     assert steps == list(range(len(steps)))  # a prefix, nothing skipped
-    assert all(run.poses[s][0].y == float(s) for s in steps)
-    assert [e["step"] for e in run.events_of("tick")][:301] == list(range(301))
-    assert run.topics[EVENTS_TOPIC] >= 301 and METRICS_TOPIC not in run.topics
+    assert data.frames.xy[:, 0, 1].tolist() == [float(s) for s in steps]
+    assert [e["step"] for e in data.events_of("tick")][:301] == list(range(301))
+    assert data.topics[EVENTS_TOPIC] >= 301 and METRICS_TOPIC not in data.topics

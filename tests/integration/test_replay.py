@@ -51,8 +51,13 @@ from runtime.messages import (
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
 from runtime.zenoh_session import open_session
-from sim_bridge import analysis
-from sim_bridge.recorder import LogScan, Recorder, iter_log
+from sim_bridge.counterfactual import counterfactual
+from sim_bridge.log_file import Recovery, iter_messages, repair
+from sim_bridge.log_layout import WIRE_ENCODING
+from sim_bridge.log_reader import read_log
+from sim_bridge.log_report import report_log
+from sim_bridge.plots import phase_tracks
+from sim_bridge.recorder import Recorder
 
 pytestmark = pytest.mark.timeout(120)
 W = DEFAULT_WORLD
@@ -101,7 +106,7 @@ def real_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
 
 def test_real_run_report_agrees_with_the_world(real_run: tuple[Path, dict[str, Any]]) -> None:
     log, result = real_run
-    rep = analysis.report_log(log)
+    rep = report_log(log)
     assert rep.finished and rep.outcome == "done" and rep.mode == "lockstep"
     assert rep.robots == [0, 1, 2, 3]
     assert [p.pattern for p in rep.phases] == ["circle", "line"]
@@ -119,9 +124,9 @@ def test_real_run_report_agrees_with_the_world(real_run: tuple[Path, dict[str, A
         assert set(mine.brains) == {"rule:assign"}
         assert mine.commands_missing == world["deadline_misses"]
     # the reader reads exactly what mcap's own reader reads
-    ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in analysis.iter_messages(log)]
-    theirs = [(m.topic, m.log_time_ns, m.data) for m in iter_log(log)]
-    assert ours == theirs and rep.messages == len(theirs)
+    ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in iter_messages(log)]
+    theirs, complete = _mcap_reads(log)
+    assert complete and ours == theirs and rep.messages == len(theirs)
 
 
 def test_real_run_cli_table_json_and_pictures(real_run: tuple[Path, dict[str, Any]],
@@ -149,19 +154,19 @@ def test_real_run_cli_table_json_and_pictures(real_run: tuple[Path, dict[str, An
 def test_counterfactual_same_brain_reproduces_other_brain_differs(
         real_run: tuple[Path, dict[str, Any]], tmp_path: Path) -> None:
     log, _ = real_run
-    data = analysis.read_log(log)
-    same = analysis.counterfactual(data, "rule:assign")
+    data = read_log(log)
+    same = counterfactual(data, "rule:assign")
     n_cmds = len(set(zip(data.commands.step.tolist(), data.commands.robot_id.tolist(),
                          strict=True)))
     assert same.overall.steps == n_cmds  # every recorded command compared
     assert same.overall.max_mps < 1e-9
     assert {pi for pi, _, _ in same.per_phase} == {0, 1}
     assert {rid for (_, rid) in same.per_robot} == {0, 1, 2, 3}
-    other = analysis.counterfactual(data, str(write_test_brain(tmp_path, "other", seed=3)))
+    other = counterfactual(data, str(write_test_brain(tmp_path, "other", seed=3)))
     assert other.overall.steps == same.overall.steps
     assert other.overall.max_mps > 0.05 and other.overall.mean_mps > 0.01
     # without the filter, rule:assign differs exactly where the robots' filter acted
-    raw = analysis.counterfactual(data, "rule:assign", safety=False)
+    raw = counterfactual(data, "rule:assign", safety=False)
     filtered = bool(data.commands.safety_changed.any())
     assert (raw.overall.max_mps > 1e-9) == filtered
 
@@ -326,7 +331,7 @@ def _overlapping(a0: dict[int, tuple[float, float]], a1: dict[int, tuple[float, 
 def test_report_matches_independent_figures(tmp_path: Path, events: bool) -> None:
     log = tmp_path / "known.mcap"
     frames, _ = write_synthetic(log, events=events)
-    rep = analysis.report_log(log)
+    rep = report_log(log)
     assert rep.finished and len(rep.phases) == 2
     patterns = {0: make_pattern("line", 3)}
     bounds = [(0, 10), (10, 20)]
@@ -359,6 +364,15 @@ def test_report_matches_independent_figures(tmp_path: Path, events: bool) -> Non
         assert ph.lower_bound_steps == lbs and ph.lower_bound_travel_m == pytest.approx(lbt)
     line, circle = rep.phases
     assert line.collisions == 1  # robots 0 and 1 pass through each other once
+    # the pictures' paths (launch and replay draw the same): the report's phases, cut by step
+    tracks = phase_tracks(rep, read_log(log))
+    assert [(t.pattern, t.formed, t.steps) for t in tracks] == [("line", True, 10),
+                                                                ("circle", True, 10)]
+    assert tracks[0].ids == [0, 1, 2] and tracks[1].ids == [0, 1, 2, 3]
+    assert tracks[1].track.shape == (11, 4, 2) and np.isnan(tracks[1].track[-1, 2]).all()
+    final = np.array([frames[-1][1][r] for r in (0, 1, 3)])
+    assert np.allclose(tracks[1].track[-1, [0, 1, 3]], final)
+    assert np.allclose(np.sort(tracks[1].targets, axis=0), np.sort(final, axis=0))
     assert set(line.travel_per_robot_m) == {0, 1, 2}
     assert set(circle.travel_per_robot_m) == {0, 1, 2, 3}
     assert line.brains == {"rule:assign": 30} and circle.brains == {"b" * 64: 32}
@@ -378,7 +392,7 @@ def test_mismatch_with_the_world_is_reported(tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     log = tmp_path / "wrong.mcap"
     write_synthetic(log, wrong_steps=True)
-    rep = analysis.report_log(log)
+    rep = report_log(log)
     assert rep.phases[0].mismatches == ["steps"] and rep.phases[1].mismatches == []
     assert cli(["replay", str(log)]) == 0
     assert "phase 0: differs from the world's phase_end in steps" in capsys.readouterr().out
@@ -402,14 +416,6 @@ def _mcap_reads(path: Path) -> tuple[list[tuple[str, int, bytes]], bool]:
             except Exception:  # mcap raises McapError, struct.error, EOFError... on a cut
                 return msgs, False
             msgs.append((ch.topic, m.log_time, m.data))
-
-
-def iter_log_complete(path: Path) -> bool:
-    """The recorder's own reading of a log: complete or not (it must not raise on a cut)."""
-    scan = LogScan()
-    for _ in iter_log(path, scan):
-        pass
-    return scan.complete
 
 
 def _seeking_read(path: Path) -> tuple[list[tuple[str, int, bytes]], Any]:
@@ -437,19 +443,20 @@ def test_truncated_logs_recover_what_mcap_recovers_and_repair(tmp_path: Path) ->
         cut.write_bytes(data[:off])
         theirs, complete = _mcap_reads(cut)
         assert not complete
-        assert not iter_log_complete(cut)
-        ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in analysis.iter_messages(cut)]
+        rec = Recovery()
+        ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in iter_messages(cut, rec)]
         assert ours == theirs == everything[: len(theirs)]
-        rep = analysis.report_log(cut)
+        assert not rec.finished and rec.error and rec.messages == len(theirs)
+        rep = report_log(cut)
         assert not rep.finished and rep.messages == len(theirs)
-        steps = {decode_pose(p).step for t, _, p in theirs if t.endswith("/pose")}
+        steps = {decode_pose(p).step for t, _, p in theirs if _kind(t) == keys.POSE}
         assert rep.steps_recorded == len(steps)
         assert rep.recovery.bytes_read <= off == rep.recovery.file_bytes
-        assert analysis.repair(cut, fixed).messages == len(theirs)
+        assert repair(cut, fixed).messages == len(theirs)
         seek, summary = _seeking_read(fixed)
         assert seek == theirs
         assert summary is not None and summary.statistics.message_count == len(theirs)
-        assert analysis.report_log(fixed).finished
+        assert report_log(fixed).finished
         recovered_counts.append(len(theirs))
     assert len(set(recovered_counts)) > 3  # the cuts fell in different chunks
 
@@ -493,7 +500,7 @@ def test_sigkilled_writer_log_is_read_and_repaired(tmp_path: Path,
             proc.wait()
     theirs, complete = _mcap_reads(log)
     assert not complete and len(theirs) >= flushed
-    rep = analysis.report_log(log)
+    rep = report_log(log)
     assert not rep.finished and rep.messages == len(theirs)
     assert rep.outcome == "cut short" and rep.steps_recorded >= (flushed - 1) // 3
     assert cli(["replay", str(log), "--repair", str(fixed)]) == 0
@@ -580,15 +587,22 @@ def _player(log: Path, listener: Listener, *extra: str) -> subprocess.Popen[str]
 
 def _wire(log: Path, kinds: tuple[str, ...] = ("pose", "cmd", "status", "pattern", "brain")
           ) -> list[tuple[str, bytes]]:
-    return [(c.topic, bytes(p)) for c, _, _, _, p in analysis.iter_messages(log)
-            if c.message_encoding == analysis.WIRE_ENCODING and c.topic.rsplit("/", 1)[-1] in kinds]
+    return [(c.topic, bytes(p)) for c, _, _, _, p in iter_messages(log)
+            if c.message_encoding == WIRE_ENCODING and _kind(c.topic) in kinds]
+
+
+def _kind(key: str) -> str:
+    k = keys.parse_key(key)
+    return "" if k is None else k.kind
 
 
 def test_play_back_delivers_the_recorded_bytes_in_order(
         real_run: tuple[Path, dict[str, Any]], listener: Any) -> None:
     log, _ = real_run
     expected = _wire(log)
-    swarm = expected[0][0].split("/")[1]
+    parsed = keys.parse_key(expected[0][0])
+    assert parsed is not None
+    swarm = parsed.swarm
     lis = listener(f"patternrl/{swarm}/**")
     proc = _player(log, lis, "--rate", "20")
     _, err = proc.communicate(timeout=60)
@@ -601,7 +615,7 @@ def test_play_back_delivers_the_recorded_bytes_in_order(
 def test_play_back_renamed_swarm_topics_start_and_loops(tmp_path: Path, listener: Any) -> None:
     log = tmp_path / "known.mcap"
     write_synthetic(log)
-    poses = [(k.replace(f"/{SWARM}/", "/other/"), p) for k, p in _wire(log, ("pose",))]
+    poses = [(keys.with_swarm(k, "other"), p) for k, p in _wire(log, ("pose",))]
     lis = listener("patternrl/other/**")
     proc = _player(log, lis, "--rate", "50", "--swarm", "other", "--topics", "pose",
                    "--loop", "2")
@@ -615,10 +629,10 @@ def test_play_back_renamed_swarm_topics_start_and_loops(tmp_path: Path, listener
                    f"patternrl/{SWARM}/robot/*/cmd")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
-    first = next(iter(analysis.iter_messages(log)))[1]  # --start counts from the log's start
-    cmds = [(c.topic, bytes(p)) for c, t, _, _, p in analysis.iter_messages(log)
-            if c.topic.endswith("/cmd") and t >= first + int(1.05e9)]
-    assert cmds and cmds[0][0].endswith("/cmd")
+    first = next(iter(iter_messages(log)))[1]  # --start counts from the log's start
+    cmds = [(c.topic, bytes(p)) for c, t, _, _, p in iter_messages(log)
+            if _kind(c.topic) == keys.CMD and t >= first + int(1.05e9)]
+    assert cmds and _kind(cmds[0][0]) == keys.CMD
     wait_for(lambda: lis2.count() >= len(cmds), 20, "the commands after 1.05 s")
     assert lis2.got == cmds
 
@@ -654,7 +668,7 @@ def test_reader_handles_other_writers_settings(tmp_path: Path, compression: str,
                    use_chunking=chunked)
         w.start()
         ids: dict[int, int] = {}
-        for ch, t, pt, seq, payload in analysis.iter_messages(src):
+        for ch, t, pt, seq, payload in iter_messages(src):
             if ch.id not in ids:
                 sid = w.register_schema(ch.schema_name, ch.schema_encoding, ch.schema_data) \
                     if ch.schema_id else 0
@@ -662,7 +676,7 @@ def test_reader_handles_other_writers_settings(tmp_path: Path, compression: str,
             w.add_message(ids[ch.id], t, payload, pt, seq)
         w.finish()  # type: ignore[no-untyped-call]
     theirs, complete = _mcap_reads(log)
-    ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in analysis.iter_messages(log)]
-    assert complete and ours == theirs and len(ours) == sum(1 for _ in analysis.iter_messages(src))
-    a, b = analysis.report_log(src), analysis.report_log(log)
+    ours = [(c.topic, t, bytes(p)) for c, t, _, _, p in iter_messages(log)]
+    assert complete and ours == theirs and len(ours) == sum(1 for _ in iter_messages(src))
+    a, b = report_log(src), report_log(log)
     assert b.finished and [asdict(p) for p in a.phases] == [asdict(p) for p in b.phases]

@@ -186,6 +186,28 @@ def test_command_round_trip_any(
     assert m.decode_command(m.encode_command(cmd)) == cmd
 
 
+def test_numpy_columns_read_what_the_encoders_write() -> None:
+    """POSE_DTYPE and command_dtype view a batch of payloads as the decoders read each one."""
+    poses = [s for s in SAMPLES.values() if isinstance(s, Pose)]
+    rec = np.frombuffer(b"".join(m.encode(p) for p in poses), m.POSE_DTYPE)
+    assert m.POSE_DTYPE.itemsize == len(m.encode(poses[0]))
+    assert (rec["tag"] == Tag.POSE).all() and (rec["version"] == m.VERSION).all()
+    for name in m.POSE_DTYPE.names or ():
+        if name not in ("tag", "version"):
+            assert rec[name].tolist() == [getattr(p, name) for p in poses], name
+    cmds = [s for s in SAMPLES.values() if isinstance(s, Command)]
+    for c in cmds:
+        raw = m.encode(c)
+        dt = m.command_dtype(len(raw) - m.COMMAND_HEAD_DTYPE.itemsize)
+        (r,) = np.frombuffer(raw, dt)
+        assert dt.itemsize == len(raw) and r["tag"] == Tag.COMMAND
+        assert (r["robot_id"], r["step"], r["vx"], r["vy"]) == (c.robot_id, c.step, c.vx, c.vy)
+        assert (bool(r["safety_changed"]), r["safety_change_mps"], r["decision_us"]) == (
+            c.safety_changed, c.safety_change_mps, c.decision_us)
+        brain = bytes(r["brain"]).decode() if "brain" in (dt.names or ()) else ""
+        assert r["brain_len"] == len(c.brain_id.encode()) and brain == c.brain_id
+
+
 # -- refusals at encode ---------------------------------------------------------------------
 
 

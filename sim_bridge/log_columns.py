@@ -1,0 +1,175 @@
+"""Recorded poses and commands as columns: a batch of wire payloads decoded at once.
+
+The payloads are viewed with the numpy layouts of :mod:`runtime.messages`
+(:data:`~runtime.messages.POSE_DTYPE`, :func:`~runtime.messages.command_dtype`),
+which are derived from the very struct formats the robots and the world encode
+with. A payload that does not decode (wrong size, tag or version, a non-finite
+value, a robot id other than its key's) is counted as malformed and dropped, as
+the robots and the world drop it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from runtime.messages import COMMAND_HEAD_DTYPE, POSE_DTYPE, VERSION, Tag, command_dtype
+from runtime.types import Array, BoolArray, IntArray
+
+
+@dataclass
+class Commands:
+    """Every recorded command, column-wise (length m), in file order."""
+
+    robot_id: IntArray
+    step: IntArray
+    v: Array
+    """(m, 2) m/s"""
+    safety_changed: BoolArray
+    brain_index: IntArray
+    """(m,) index into :attr:`brain_ids` of the brain that decided each command"""
+    brain_ids: list[str]
+    """the brain ids on the log (one run has one or a few: stored once)"""
+
+    @property
+    def brain(self) -> list[str]:
+        """Brain id of each command."""
+        return [self.brain_ids[i] for i in self.brain_index.tolist()]
+
+    def brain_counts(self, sel: BoolArray) -> dict[str, int]:
+        """Brain id -> commands it decided among ``sel`` (m,), in order of first appearance."""
+        codes, first, counts = np.unique(self.brain_index[sel], return_index=True,
+                                         return_counts=True)
+        out: dict[str, int] = {}
+        for k in np.argsort(first, kind="stable").tolist():
+            name = self.brain_ids[int(codes[k])]
+            out[name] = out.get(name, 0) + int(counts[k])
+        return out
+
+    @staticmethod
+    def empty() -> Commands:
+        return Commands(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)),
+                        np.zeros(0, bool), np.zeros(0, np.int64), [])
+
+
+@dataclass
+class Frames:
+    """The recorded poses as a dense table: one row per recorded step, one column per robot.
+
+    ``steps`` (S,) sorted; ``ids`` (m,) robot ids, sorted; ``xy`` (S, m, 2) metres,
+    NaN where a robot has no pose at that step; ``present`` (S, m);
+    ``first_msg`` (S,) the message index of each step's first pose (file order).
+    """
+
+    steps: IntArray
+    ids: IntArray
+    xy: Array
+    present: BoolArray
+    first_msg: IntArray
+
+    def row(self, step: int) -> int:
+        """Row of ``step``, or -1 when no pose of it was recorded."""
+        k = int(np.searchsorted(self.steps, step))
+        return k if k < len(self.steps) and self.steps[k] == step else -1
+
+    def rows(self, first_step: int, last_step: int) -> IntArray:
+        """Rows of the recorded steps in [first_step, last_step]."""
+        lo = int(np.searchsorted(self.steps, first_step))
+        hi = int(np.searchsorted(self.steps, last_step, side="right"))
+        return np.arange(lo, hi, dtype=np.int64)
+
+
+def decode_poses(raw: list[bytes], idx: list[int], key_rid: list[int]
+                 ) -> tuple[NDArray[Any], IntArray, int]:
+    """Pose payloads as structured records (:data:`runtime.messages.POSE_DTYPE`).
+
+    ``idx`` is each payload's message index, ``key_rid`` the robot id on its key.
+    Returns (the good records, their message indices, how many were malformed).
+    """
+    size = POSE_DTYPE.itemsize
+    bad = 0
+    if set(map(len, raw)) - {size}:  # rare: payloads of the wrong size are malformed
+        ok_len = [k for k, b in enumerate(raw) if len(b) == size]
+        bad = len(raw) - len(ok_len)
+        raw = [raw[k] for k in ok_len]
+        idx = [idx[k] for k in ok_len]
+        key_rid = [key_rid[k] for k in ok_len]
+    rec = np.frombuffer(b"".join(raw), dtype=POSE_DTYPE)
+    good = (
+        (rec["tag"] == Tag.POSE) & (rec["version"] == VERSION)
+        & np.isfinite(rec["x"]) & np.isfinite(rec["y"]) & np.isfinite(rec["time_s"])
+        & np.isfinite(rec["vx"]) & np.isfinite(rec["vy"])
+        & (rec["robot_id"].astype(np.int64) == np.asarray(key_rid, np.int64))
+    )
+    bad += int((~good).sum())
+    return rec[good], np.asarray(idx, np.int64)[good], bad
+
+
+def decode_commands(raw: list[bytes], key_rid: list[int]) -> tuple[Commands, int]:
+    """Command payloads as :class:`Commands`, in the order given; (commands, malformed)."""
+    lengths = list(map(len, raw))
+    by_len: dict[int, list[int]] = {}
+    if len(set(lengths)) == 1:  # the usual case: one brain id length for the whole run
+        by_len[lengths[0]] = list(range(len(raw)))
+    else:
+        for k, n in enumerate(lengths):
+            by_len.setdefault(n, []).append(k)
+    cols: list[tuple[IntArray, IntArray, Array, BoolArray, IntArray, IntArray]] = []
+    brain_ids: list[str] = []
+    bad = 0
+    for length, ks in by_len.items():
+        blen = length - COMMAND_HEAD_DTYPE.itemsize
+        if blen < 0:
+            bad += len(ks)
+            continue
+        joined = b"".join(raw) if len(ks) == len(raw) else b"".join([raw[k] for k in ks])
+        rec = np.frombuffer(joined, dtype=command_dtype(blen))
+        good = (
+            (rec["tag"] == Tag.COMMAND) & (rec["version"] == VERSION)
+            & (rec["brain_len"] == blen) & (rec["safety_changed"] <= 1)
+            & np.isfinite(rec["vx"]) & np.isfinite(rec["vy"])
+            & (rec["robot_id"].astype(np.int64) == np.asarray([key_rid[k] for k in ks]))
+        )
+        bad += int((~good).sum())
+        rec = rec[good]
+        order = np.asarray(ks, np.int64)[good]
+        if blen:
+            names, inv = np.unique(rec["brain"], return_inverse=True)
+            index = inv.astype(np.int64).reshape(-1) + len(brain_ids)
+            brain_ids += [bytes(b).decode("utf-8", "replace") for b in names]
+        else:
+            index = np.full(len(rec), len(brain_ids), np.int64)
+            brain_ids.append("")
+        cols.append((rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
+                     np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64),
+                     rec["safety_changed"].astype(bool), index, order))
+    if not cols:
+        return Commands.empty(), bad
+    order = np.argsort(np.concatenate([c[5] for c in cols]), kind="stable")
+    return Commands(
+        np.concatenate([c[0] for c in cols])[order], np.concatenate([c[1] for c in cols])[order],
+        np.concatenate([c[2] for c in cols])[order], np.concatenate([c[3] for c in cols])[order],
+        np.concatenate([c[4] for c in cols])[order], brain_ids,
+    ), bad
+
+
+def frames_of(rec: NDArray[Any], idx: IntArray) -> Frames:
+    """The dense table of pose records ``rec`` (message indices ``idx``)."""
+    if len(rec) == 0:
+        return Frames(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 0, 2)),
+                      np.zeros((0, 0), bool), np.zeros(0, np.int64))
+    step = rec["step"].astype(np.int64)
+    rid = rec["robot_id"].astype(np.int64)
+    steps, srow = np.unique(step, return_inverse=True)
+    ids, rcol = np.unique(rid, return_inverse=True)
+    xy = np.full((len(steps), len(ids), 2), np.nan)
+    xy[srow, rcol, 0] = rec["x"]  # a pose recorded twice: the later one stands
+    xy[srow, rcol, 1] = rec["y"]
+    present = np.zeros((len(steps), len(ids)), bool)
+    present[srow, rcol] = True
+    first = np.full(len(steps), np.iinfo(np.int64).max, np.int64)
+    np.minimum.at(first, srow, idx)
+    return Frames(steps, ids, xy, present, first)

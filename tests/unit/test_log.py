@@ -1,0 +1,105 @@
+"""The log's layout (channels by key), its command columns and its phase slicing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from runtime import keys
+from runtime.messages import Command, PatternMsg, Pose, encode_command, encode_pattern, encode_pose
+from runtime.patterns import make_pattern
+from runtime.world_config import DEFAULT_WORLD
+from sim_bridge.log_columns import decode_commands
+from sim_bridge.log_layout import (
+    EVENTS_TOPIC,
+    WIRE_ENCODING,
+    WIRE_SCHEMAS,
+    wire_kind,
+    wire_schema,
+)
+from sim_bridge.log_phases import phases_of
+from sim_bridge.log_reader import read_log
+from sim_bridge.recorder import Recorder
+
+W = DEFAULT_WORLD
+
+
+def test_wire_channels_are_told_apart_by_their_keys() -> None:
+    assert wire_schema(keys.pose_key("s", 3)) == WIRE_SCHEMAS[keys.POSE] == "patternrl.Pose"
+    assert wire_schema(keys.cmd_key("s", 0)) == "patternrl.Command"
+    assert wire_schema(keys.pattern_key("s")) == "patternrl.Pattern"
+    assert wire_schema(keys.alive_key("s", 1)) is None  # a key of ours without a schema
+    assert wire_schema("patternrl/s/something/else") is None  # raw bytes
+    assert wire_kind(keys.status_key("s", 12), WIRE_ENCODING) == (keys.STATUS, 12)
+    assert wire_kind(keys.brain_key("s"), WIRE_ENCODING) == (keys.BRAIN, -1)
+    assert wire_kind(keys.pose_key("s", 3), "json") == ("", -1)
+    assert wire_kind(EVENTS_TOPIC, "json") == ("", -1)
+    assert wire_kind("patternrl/s/robot/03/pose", WIRE_ENCODING) == ("", -1)
+
+
+def _log(path: Path, events: bool) -> None:
+    """Steps 0-5 of two robots; line from step 0, resized at 2 (events only), circle from 3."""
+    line, circle = make_pattern("line", 2), make_pattern("circle", 2)
+    with Recorder(path) as rec:
+        for step in range(6):
+            t = step * 10**8
+            if step in (0, 3):
+                name, pts = ("line", line) if step == 0 else ("circle", circle)
+                version = 1 if step == 0 else 3
+                rec.write_wire(keys.pattern_key("s"), encode_pattern(
+                    PatternMsg(version, name, pts, W.formed_tol_m)), t)
+                if events:
+                    rec.event("pattern", step, step * W.dt_s, version=version, name=name,
+                              reason="phase", points=pts.tolist(), formed_tol_m=W.formed_tol_m)
+                    rec.event("brain_swap", step, step * W.dt_s, robot=0, accepted=True)
+            if step == 2 and events:
+                rec.event("pattern", 2, 0.2, version=2, name="line", reason="resize",
+                          points=(line * 1.5).tolist(), formed_tol_m=W.formed_tol_m)
+                rec.event("phase_end", 2, 0.2, end_step=2)
+                rec.event("brain_swap", 2, 0.2, robot=1, accepted=False)
+            for rid in range(2):
+                rec.write_wire(keys.pose_key("s", rid), encode_pose(
+                    Pose(rid, step, step * W.dt_s, float(rid), float(step), 0.0, 0.0, 2)), t + 1)
+
+
+def test_phases_sliced_from_events(tmp_path: Path) -> None:
+    _log(tmp_path / "e.mcap", events=True)
+    data = read_log(tmp_path / "e.mcap")
+    assert data.frames.rows(1, 4).tolist() == [1, 2, 3, 4]
+    assert data.frames.rows(7, 9).tolist() == [] and data.frames.row(5) == 5
+    line, circle = phases_of(data)
+    assert (line.name, line.start_step, line.end_step) == ("line", 0, 2)
+    assert [p.step for p in line.patterns] == [0, 2]  # the resize is the same phase
+    assert line.pattern_rows(np.arange(4)).tolist() == [0, 0, 1, 1]
+    assert (circle.name, circle.start_step, circle.end_step) == ("circle", 3, None)
+    # a swap between two phases belongs to the next one
+    assert [s["robot"] for s in line.swaps] == [0]
+    assert [s["robot"] for s in circle.swaps] == [1, 0]
+
+
+def test_phases_sliced_from_the_wire_without_events(tmp_path: Path) -> None:
+    _log(tmp_path / "w.mcap", events=False)
+    data = read_log(tmp_path / "w.mcap")
+    line, circle = phases_of(data)
+    assert (line.name, line.start_step, circle.name, circle.start_step) == ("line", 0, "circle", 3)
+    assert [p.version for p in line.patterns] == [1] and line.end_step is None
+
+
+def test_command_columns_keep_file_order_across_brain_id_lengths() -> None:
+    brains = ["b" * 64, "rule:assign", "", "b" * 64, "rule:assign", "b" * 64]
+    raw = [encode_command(Command(k % 3, k, 0.1 * k, -0.1 * k, b, k == 1, 0.0, 5.0))
+           for k, b in enumerate(brains)]
+    raw.insert(2, raw[0][:-1])  # a command whose length says its brain id is cut short
+    rid = [k % 3 for k in range(len(brains))]
+    rid.insert(2, 0)
+    cmds, bad = decode_commands(raw, rid)
+    assert bad == 1
+    assert cmds.step.tolist() == list(range(6)) and cmds.brain == brains
+    assert cmds.v[:, 0].tolist() == [0.1 * k for k in range(6)]
+    assert cmds.safety_changed.tolist() == [False, True, False, False, False, False]
+    everything = np.ones(6, bool)
+    assert list(cmds.brain_counts(everything).items()) == [
+        ("b" * 64, 3), ("rule:assign", 2), ("", 1)]
+    assert cmds.brain_counts(cmds.step >= 4) == {"rule:assign": 1, "b" * 64: 1}
+    assert list(cmds.brain_counts(cmds.step >= 4)) == ["rule:assign", "b" * 64]
