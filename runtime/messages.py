@@ -28,11 +28,29 @@ import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from enum import IntEnum
 from typing import Any, Final, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
+
+from runtime.wire_codec import (
+    HEADER,
+    LEN32,
+    U32,
+    U64,
+    VERSION,
+    Buffer,
+    MessageError,
+    Reader,
+    Tag,
+    as_view,
+    check_header,
+    columns,
+    finite,
+    read_text,
+    uint,
+    utf8,
+)
 
 __all__ = [
     "COMMAND_HEAD_DTYPE",
@@ -70,9 +88,6 @@ __all__ = [
     "encode_status",
 ]
 
-VERSION: Final = 1
-"""Wire format version written by this build; decoders accept exactly this version."""
-
 MAX_BRAIN_ID_CHARS: Final = 64
 MAX_PATTERN_NAME_BYTES: Final = 1024
 MAX_PATTERN_POINTS: Final = 65_536
@@ -81,151 +96,6 @@ MAX_MANIFEST_BYTES: Final = 1 << 20
 MAX_ONNX_BYTES: Final = 64 << 20
 MAX_TARGET_ROBOTS: Final = 65_536
 MAX_STATUS_BYTES: Final = 64 << 10
-
-_U32: Final = (1 << 32) - 1
-_U64: Final = (1 << 64) - 1
-
-Buffer: TypeAlias = bytes | bytearray | memoryview
-"""What decoders accept: any contiguous bytes-like payload."""
-
-
-class MessageError(ValueError):
-    """A payload that is not a valid message, or a message that cannot be encoded."""
-
-
-class Tag(IntEnum):
-    """First byte of every payload: which message follows."""
-
-    POSE = 1
-    COMMAND = 2
-    STATUS = 3
-    PATTERN = 4
-    BRAIN = 5
-
-
-def _tag_name(tag: int) -> str:
-    try:
-        return Tag(tag).name.lower()
-    except ValueError:
-        return "unknown"
-
-
-def _check_header(buf: Buffer, tag: Tag) -> None:
-    """Raise MessageError unless ``buf`` starts with ``tag`` and :data:`VERSION`."""
-    what = tag.name.lower()
-    if len(buf) < 2:
-        raise MessageError(f"truncated {what}: {len(buf)} bytes, no room for the 2-byte header")
-    got = buf[0]
-    if got != tag:
-        raise MessageError(f"expected {what} (tag {int(tag)}), got {_tag_name(got)} (tag {got})")
-    if buf[1] != VERSION:
-        raise MessageError(f"unsupported {what} version {buf[1]} (this build reads {VERSION})")
-
-
-def _as_view(payload: object, what: str) -> memoryview:
-    try:
-        view = memoryview(payload)  # type: ignore[arg-type]
-        return view if view.format == "B" and view.ndim == 1 else view.cast("B")
-    except (TypeError, ValueError) as e:
-        raise MessageError(
-            f"{what} payload must be bytes-like, got {type(payload).__name__}"
-        ) from e
-
-
-# -- field checks shared by encoders and decoders -------------------------------------------
-
-
-def _finite(what: str, name: str, value: float) -> float:
-    if not math.isfinite(value):
-        raise MessageError(f"{what}.{name} must be finite, got {value!r}")
-    return value
-
-
-def _uint(what: str, name: str, value: object, limit: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise MessageError(f"{what}.{name} must be an int, got {type(value).__name__}")
-    if not 0 <= value <= limit:
-        raise MessageError(f"{what}.{name} must be in [0, {limit}], got {value}")
-    return value
-
-
-def _utf8(what: str, name: str, value: object, max_bytes: int, max_chars: int = -1) -> bytes:
-    if not isinstance(value, str):
-        raise MessageError(f"{what}.{name} must be a str, got {type(value).__name__}")
-    if 0 <= max_chars < len(value):
-        raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
-    try:
-        raw = value.encode("utf-8")
-    except UnicodeEncodeError as e:
-        raise MessageError(f"{what}.{name} is not encodable as utf-8: {e.reason}") from None
-    if len(raw) > max_bytes:
-        raise MessageError(f"{what}.{name} is {len(raw)} bytes, at most {max_bytes} allowed")
-    return raw
-
-
-def _text(what: str, name: str, raw: Buffer, max_chars: int = -1) -> str:
-    try:
-        value = bytes(raw).decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise MessageError(f"{what}.{name} is not valid utf-8: {e.reason}") from None
-    if 0 <= max_chars < len(value):
-        raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
-    return value
-
-
-class _Reader:
-    """Walks a payload from ``start``, turning every shortfall into MessageError."""
-
-    __slots__ = ("_pos", "_view", "_what")
-
-    def __init__(self, view: memoryview, what: str, start: int) -> None:
-        self._view = view
-        self._what = what
-        self._pos = start
-
-    def unpack(self, fmt: struct.Struct, name: str) -> tuple[Any, ...]:
-        end = self._pos + fmt.size
-        if end > len(self._view):
-            raise MessageError(
-                f"truncated {self._what}: {len(self._view)} bytes, {name} needs {end}"
-            )
-        out = fmt.unpack_from(self._view, self._pos)
-        self._pos = end
-        return out
-
-    def take(self, n: int, name: str) -> memoryview:
-        end = self._pos + n
-        if end > len(self._view):
-            raise MessageError(
-                f"truncated {self._what}: {name} claims {n} bytes, "
-                f"only {len(self._view) - self._pos} left"
-            )
-        out = self._view[self._pos : end]
-        self._pos = end
-        return out
-
-    def finish(self) -> None:
-        extra = len(self._view) - self._pos
-        if extra:
-            raise MessageError(f"{extra} trailing bytes after {self._what}")
-
-
-_HEADER: Final = struct.Struct("<BB")
-_LEN32: Final = struct.Struct("<I")
-
-
-def _columns(fmt: struct.Struct, names: tuple[str, ...]) -> np.dtype[np.void]:
-    """The numpy structured dtype that views packed ``fmt`` records as named columns.
-
-    Built from the struct format itself, so a batch of payloads (``np.frombuffer``) reads
-    exactly what :mod:`struct` writes: a wire change is an edit of the format only.
-    """
-    codes = fmt.format.lstrip("<")
-    assert fmt.format.startswith("<") and len(codes) == len(names)
-    dt = np.dtype([(name, "<" + code) for name, code in zip(names, codes, strict=True)])
-    assert dt.itemsize == fmt.size
-    return dt
-
 
 # -- Pose -----------------------------------------------------------------------------------
 
@@ -249,7 +119,7 @@ class Pose:
 
 
 _POSE: Final = struct.Struct("<BBIQdddddI")
-POSE_DTYPE: Final = _columns(_POSE, ("tag", "version", "robot_id", "step", "time_s", "x", "y",
+POSE_DTYPE: Final = columns(_POSE, ("tag", "version", "robot_id", "step", "time_s", "x", "y",
                                      "vx", "vy", "n_live"))
 """A pose payload as one numpy record: ``np.frombuffer(b"".join(payloads), POSE_DTYPE)``."""
 _new: Final = object.__new__
@@ -280,11 +150,11 @@ def decode_pose(payload: Buffer) -> Pose:
     try:
         tag, ver, rid, step, t, x, y, vx, vy, n_live = _POSE.unpack(payload)
     except (struct.error, TypeError, ValueError):
-        view = _as_view(payload, "pose")
-        _check_header(view, Tag.POSE)
+        view = as_view(payload, "pose")
+        check_header(view, Tag.POSE)
         raise MessageError(f"pose must be {_POSE.size} bytes, got {len(view)}") from None
     if tag != Tag.POSE or ver != VERSION:
-        _check_header(_as_view(payload, "pose"), Tag.POSE)
+        check_header(as_view(payload, "pose"), Tag.POSE)
     isf = math.isfinite
     if not (isf(t) and isf(x) and isf(y) and isf(vx) and isf(vy)):
         raise _pose_bad_float((t, x, y, vx, vy)) or MessageError("pose: non-finite float")
@@ -318,7 +188,7 @@ class Command:
 
 
 _COMMAND: Final = struct.Struct("<BBIQddBddH")
-COMMAND_HEAD_DTYPE: Final = _columns(_COMMAND, (
+COMMAND_HEAD_DTYPE: Final = columns(_COMMAND, (
     "tag", "version", "robot_id", "step", "vx", "vy", "safety_changed", "safety_change_mps",
     "decision_us", "brain_len"))
 """The fixed part of a command payload as one numpy record (the brain id follows it)."""
@@ -337,7 +207,7 @@ _MAX_BRAIN_ID_BYTES: Final = 4 * MAX_BRAIN_ID_CHARS
 def encode_command(msg: Command) -> bytes:
     """Encode a :class:`Command`: 49 bytes plus the utf-8 brain id."""
     w = "command"
-    brain = _utf8(w, "brain_id", msg.brain_id, _MAX_BRAIN_ID_BYTES, MAX_BRAIN_ID_CHARS)
+    brain = utf8(w, "brain_id", msg.brain_id, _MAX_BRAIN_ID_BYTES, MAX_BRAIN_ID_CHARS)
     if not isinstance(msg.safety_changed, bool):
         raise MessageError(
             f"command.safety_changed must be a bool, got {type(msg.safety_changed).__name__}"
@@ -346,13 +216,13 @@ def encode_command(msg: Command) -> bytes:
         head = _COMMAND.pack(
             Tag.COMMAND,
             VERSION,
-            _uint(w, "robot_id", msg.robot_id, _U32),
-            _uint(w, "step", msg.step, _U64),
-            _finite(w, "vx", msg.vx),
-            _finite(w, "vy", msg.vy),
+            uint(w, "robot_id", msg.robot_id, U32),
+            uint(w, "step", msg.step, U64),
+            finite(w, "vx", msg.vx),
+            finite(w, "vy", msg.vy),
             int(msg.safety_changed),
-            _finite(w, "safety_change_mps", msg.safety_change_mps),
-            _finite(w, "decision_us", msg.decision_us),
+            finite(w, "safety_change_mps", msg.safety_change_mps),
+            finite(w, "decision_us", msg.decision_us),
             len(brain),
         )
     except (struct.error, TypeError) as e:
@@ -363,17 +233,17 @@ def encode_command(msg: Command) -> bytes:
 def decode_command(payload: Buffer) -> Command:
     """Decode a payload written by :func:`encode_command`."""
     w = "command"
-    view = _as_view(payload, w)
-    _check_header(view, Tag.COMMAND)
-    r = _Reader(view, w, 0)
+    view = as_view(payload, w)
+    check_header(view, Tag.COMMAND)
+    r = Reader(view, w, 0)
     _, _, rid, step, vx, vy, changed, change, dec_us, n = r.unpack(_COMMAND, "the fixed part")
     if changed not in (0, 1):
         raise MessageError(f"command.safety_changed must be 0 or 1, got {changed}")
     for name, v in (("vx", vx), ("vy", vy), ("safety_change_mps", change), ("decision_us", dec_us)):
-        _finite(w, name, v)
+        finite(w, name, v)
     if n > _MAX_BRAIN_ID_BYTES:
         raise MessageError(f"command.brain_id claims {n} bytes, at most {_MAX_BRAIN_ID_BYTES}")
-    brain = _text(w, "brain_id", r.take(n, "brain_id"), MAX_BRAIN_ID_CHARS)
+    brain = read_text(w, "brain_id", r.take(n, "brain_id"), MAX_BRAIN_ID_CHARS)
     r.finish()
     return Command(rid, step, vx, vy, brain, bool(changed), change, dec_us)
 
@@ -432,14 +302,14 @@ def _status_field(name: str, value: object) -> object:
     w = "status"
     kind = _STATUS_KINDS[name]
     if kind == "u32":
-        return _uint(w, name, value, _U32)
+        return uint(w, name, value, U32)
     if kind == "u64":
-        return _uint(w, name, value, _U64)
+        return uint(w, name, value, U64)
     if kind == "f":
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise MessageError(f"status.{name} must be a number, got {type(value).__name__}")
         try:
-            return _finite(w, name, float(value))
+            return finite(w, name, float(value))
         except OverflowError:
             raise MessageError(f"status.{name} is out of float range") from None
     if kind == "b":
@@ -447,7 +317,7 @@ def _status_field(name: str, value: object) -> object:
             raise MessageError(f"status.{name} must be a bool, got {type(value).__name__}")
         return value
     max_chars = MAX_BRAIN_ID_CHARS if kind == "id" else -1
-    _utf8(w, name, value, MAX_STATUS_BYTES, max_chars)
+    utf8(w, name, value, MAX_STATUS_BYTES, max_chars)
     return value
 
 
@@ -455,7 +325,7 @@ def encode_status(msg: Status) -> bytes:
     """Encode a :class:`Status` as tag, version and a compact utf-8 JSON object."""
     body = {name: _status_field(name, getattr(msg, name)) for name in _STATUS_KINDS}
     raw = json.dumps(body, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
-    out = _HEADER.pack(Tag.STATUS, VERSION) + raw.encode("utf-8")
+    out = HEADER.pack(Tag.STATUS, VERSION) + raw.encode("utf-8")
     if len(out) > MAX_STATUS_BYTES:
         raise MessageError(
             f"status is {len(out)} bytes, at most {MAX_STATUS_BYTES}: trim last_error"
@@ -476,11 +346,11 @@ def _no_constant(token: str) -> object:
 
 def decode_status(payload: Buffer) -> Status:
     """Decode a payload written by :func:`encode_status`."""
-    view = _as_view(payload, "status")
-    _check_header(view, Tag.STATUS)
+    view = as_view(payload, "status")
+    check_header(view, Tag.STATUS)
     if len(view) > MAX_STATUS_BYTES:
         raise MessageError(f"status is {len(view)} bytes, at most {MAX_STATUS_BYTES}")
-    text = _text("status", "body", view[2:])
+    text = read_text("status", "body", view[2:])
     try:
         body = json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_no_constant)
     except MessageError:
@@ -546,19 +416,19 @@ _PATTERN: Final = struct.Struct("<BBQdHI")
 def encode_pattern(msg: PatternMsg) -> bytes:
     """Encode a :class:`PatternMsg`: 24 bytes, the utf-8 name, then n x 2 float64."""
     w = "pattern"
-    name = _utf8(w, "name", msg.name, MAX_PATTERN_NAME_BYTES)
+    name = utf8(w, "name", msg.name, MAX_PATTERN_NAME_BYTES)
     pts = msg.points
     n = pts.shape[0]
     if n > MAX_PATTERN_POINTS:
         raise MessageError(f"pattern has {n} points, at most {MAX_PATTERN_POINTS}")
     if not np.isfinite(pts).all():
         raise MessageError("pattern.points must all be finite")
-    tol = _finite(w, "formed_tol_m", msg.formed_tol_m)
+    tol = finite(w, "formed_tol_m", msg.formed_tol_m)
     if tol < 0:
         raise MessageError(f"pattern.formed_tol_m must be >= 0, got {tol!r}")
     try:
         head = _PATTERN.pack(
-            Tag.PATTERN, VERSION, _uint(w, "version", msg.version, _U64), tol, len(name), n
+            Tag.PATTERN, VERSION, uint(w, "version", msg.version, U64), tol, len(name), n
         )
     except (struct.error, TypeError) as e:
         raise MessageError(f"cannot encode pattern: {e}") from None
@@ -568,11 +438,11 @@ def encode_pattern(msg: PatternMsg) -> bytes:
 def decode_pattern(payload: Buffer) -> PatternMsg:
     """Decode a payload written by :func:`encode_pattern`."""
     w = "pattern"
-    view = _as_view(payload, w)
-    _check_header(view, Tag.PATTERN)
-    r = _Reader(view, w, 0)
+    view = as_view(payload, w)
+    check_header(view, Tag.PATTERN)
+    r = Reader(view, w, 0)
     _, _, version, tol, name_len, n = r.unpack(_PATTERN, "the fixed part")
-    _finite(w, "formed_tol_m", tol)
+    finite(w, "formed_tol_m", tol)
     if tol < 0:
         raise MessageError(f"pattern.formed_tol_m must be >= 0, got {tol!r}")
     if name_len > MAX_PATTERN_NAME_BYTES:
@@ -581,7 +451,7 @@ def decode_pattern(payload: Buffer) -> PatternMsg:
         )
     if n > MAX_PATTERN_POINTS:
         raise MessageError(f"pattern claims {n} points, at most {MAX_PATTERN_POINTS}")
-    name = _text(w, "name", r.take(name_len, "name"))
+    name = read_text(w, "name", r.take(name_len, "name"))
     raw = r.take(16 * n, "points")
     r.finish()
     pts = np.frombuffer(raw, dtype="<f8").reshape(n, 2)
@@ -610,8 +480,8 @@ class BrainMsg:
 def encode_brain(msg: BrainMsg) -> bytes:
     """Encode a :class:`BrainMsg`: header, then uint32-length-prefixed fields."""
     w = "brain"
-    req = _utf8(w, "request_id", msg.request_id, MAX_REQUEST_ID_BYTES)
-    manifest = _utf8(w, "manifest_json", msg.manifest_json, MAX_MANIFEST_BYTES)
+    req = utf8(w, "request_id", msg.request_id, MAX_REQUEST_ID_BYTES)
+    manifest = utf8(w, "manifest_json", msg.manifest_json, MAX_MANIFEST_BYTES)
     onnx = msg.onnx_bytes
     if not isinstance(onnx, (bytes, bytearray, memoryview)):
         raise MessageError(f"brain.onnx_bytes must be bytes, got {type(onnx).__name__}")
@@ -623,19 +493,19 @@ def encode_brain(msg: BrainMsg) -> bytes:
         raise MessageError(f"brain.target_robots must be a tuple, got {type(targets).__name__}")
     if len(targets) > MAX_TARGET_ROBOTS:
         raise MessageError(f"brain targets {len(targets)} robots, at most {MAX_TARGET_ROBOTS}")
-    ids = [_uint(w, "target_robots[]", t, _U32) for t in targets]
+    ids = [uint(w, "target_robots[]", t, U32) for t in targets]
     if len(set(ids)) != len(ids):
         raise MessageError("brain.target_robots repeats a robot id")
     return b"".join(
         (
-            _HEADER.pack(Tag.BRAIN, VERSION),
-            _LEN32.pack(len(req)),
+            HEADER.pack(Tag.BRAIN, VERSION),
+            LEN32.pack(len(req)),
             req,
-            _LEN32.pack(len(manifest)),
+            LEN32.pack(len(manifest)),
             manifest,
-            _LEN32.pack(len(onnx)),
+            LEN32.pack(len(onnx)),
             onnx,
-            _LEN32.pack(len(ids)),
+            LEN32.pack(len(ids)),
             struct.pack(f"<{len(ids)}I", *ids),
         )
     )
@@ -644,20 +514,20 @@ def encode_brain(msg: BrainMsg) -> bytes:
 def decode_brain(payload: Buffer) -> BrainMsg:
     """Decode a payload written by :func:`encode_brain`."""
     w = "brain"
-    view = _as_view(payload, w)
-    _check_header(view, Tag.BRAIN)
-    r = _Reader(view, w, _HEADER.size)
+    view = as_view(payload, w)
+    check_header(view, Tag.BRAIN)
+    r = Reader(view, w, HEADER.size)
 
     def chunk(name: str, limit: int) -> memoryview:
-        (n,) = r.unpack(_LEN32, f"len({name})")
+        (n,) = r.unpack(LEN32, f"len({name})")
         if n > limit:
             raise MessageError(f"brain.{name} claims {n} bytes, at most {limit}")
         return r.take(n, name)
 
-    req = _text(w, "request_id", chunk("request_id", MAX_REQUEST_ID_BYTES))
-    manifest = _text(w, "manifest_json", chunk("manifest_json", MAX_MANIFEST_BYTES))
+    req = read_text(w, "request_id", chunk("request_id", MAX_REQUEST_ID_BYTES))
+    manifest = read_text(w, "manifest_json", chunk("manifest_json", MAX_MANIFEST_BYTES))
     onnx = bytes(chunk("onnx_bytes", MAX_ONNX_BYTES))
-    (n,) = r.unpack(_LEN32, "len(target_robots)")
+    (n,) = r.unpack(LEN32, "len(target_robots)")
     if n > MAX_TARGET_ROBOTS:
         raise MessageError(f"brain claims {n} target robots, at most {MAX_TARGET_ROBOTS}")
     targets = struct.unpack(f"<{n}I", r.take(4 * n, "target_robots"))
@@ -698,7 +568,7 @@ def encode(msg: Message) -> bytes:
 
 def decode(payload: Buffer) -> Message:
     """Decode any message, dispatching on its leading tag byte."""
-    view = payload if type(payload) is bytes else _as_view(payload, "message")
+    view = payload if type(payload) is bytes else as_view(payload, "message")
     if not view:
         raise MessageError("empty payload: no message tag")
     decoder = _DECODERS.get(view[0])

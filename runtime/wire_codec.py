@@ -1,0 +1,160 @@
+"""The building blocks of the wire codecs in :mod:`runtime.messages`.
+
+The 2-byte header every payload starts with (tag, format version), field checks
+shared by encoders and decoders, a bounds-checked payload reader and the numpy
+column layout of a packed struct. Every failure is a :class:`MessageError` with
+a one-line reason; the messages themselves live in :mod:`runtime.messages`.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from enum import IntEnum
+from typing import Any, Final, TypeAlias
+
+import numpy as np
+
+Buffer: TypeAlias = bytes | bytearray | memoryview
+"""What decoders accept: any contiguous bytes-like payload."""
+
+VERSION: Final = 1
+"""Wire format version written by this build; decoders accept exactly this version."""
+
+U32: Final = (1 << 32) - 1
+U64: Final = (1 << 64) - 1
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid message, or a message that cannot be encoded."""
+
+
+class Tag(IntEnum):
+    """First byte of every payload: which message follows."""
+
+    POSE = 1
+    COMMAND = 2
+    STATUS = 3
+    PATTERN = 4
+    BRAIN = 5
+
+
+def tag_name(tag: int) -> str:
+    try:
+        return Tag(tag).name.lower()
+    except ValueError:
+        return "unknown"
+
+
+def check_header(buf: Buffer, tag: Tag) -> None:
+    """Raise MessageError unless ``buf`` starts with ``tag`` and :data:`VERSION`."""
+    what = tag.name.lower()
+    if len(buf) < 2:
+        raise MessageError(f"truncated {what}: {len(buf)} bytes, no room for the 2-byte header")
+    got = buf[0]
+    if got != tag:
+        raise MessageError(f"expected {what} (tag {int(tag)}), got {tag_name(got)} (tag {got})")
+    if buf[1] != VERSION:
+        raise MessageError(f"unsupported {what} version {buf[1]} (this build reads {VERSION})")
+
+
+HEADER: Final = struct.Struct("<BB")
+LEN32: Final = struct.Struct("<I")
+
+
+def as_view(payload: object, what: str) -> memoryview:
+    try:
+        view = memoryview(payload)  # type: ignore[arg-type]
+        return view if view.format == "B" and view.ndim == 1 else view.cast("B")
+    except (TypeError, ValueError) as e:
+        raise MessageError(
+            f"{what} payload must be bytes-like, got {type(payload).__name__}"
+        ) from e
+
+
+def finite(what: str, name: str, value: float) -> float:
+    if not math.isfinite(value):
+        raise MessageError(f"{what}.{name} must be finite, got {value!r}")
+    return value
+
+
+def uint(what: str, name: str, value: object, limit: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise MessageError(f"{what}.{name} must be an int, got {type(value).__name__}")
+    if not 0 <= value <= limit:
+        raise MessageError(f"{what}.{name} must be in [0, {limit}], got {value}")
+    return value
+
+
+def utf8(what: str, name: str, value: object, max_bytes: int, max_chars: int = -1) -> bytes:
+    if not isinstance(value, str):
+        raise MessageError(f"{what}.{name} must be a str, got {type(value).__name__}")
+    if 0 <= max_chars < len(value):
+        raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
+    try:
+        raw = value.encode("utf-8")
+    except UnicodeEncodeError as e:
+        raise MessageError(f"{what}.{name} is not encodable as utf-8: {e.reason}") from None
+    if len(raw) > max_bytes:
+        raise MessageError(f"{what}.{name} is {len(raw)} bytes, at most {max_bytes} allowed")
+    return raw
+
+
+def read_text(what: str, name: str, raw: Buffer, max_chars: int = -1) -> str:
+    try:
+        value = bytes(raw).decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise MessageError(f"{what}.{name} is not valid utf-8: {e.reason}") from None
+    if 0 <= max_chars < len(value):
+        raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
+    return value
+
+
+class Reader:
+    """Walks a payload from ``start``, turning every shortfall into MessageError."""
+
+    __slots__ = ("_pos", "_view", "_what")
+
+    def __init__(self, view: memoryview, what: str, start: int) -> None:
+        self._view = view
+        self._what = what
+        self._pos = start
+
+    def unpack(self, fmt: struct.Struct, name: str) -> tuple[Any, ...]:
+        end = self._pos + fmt.size
+        if end > len(self._view):
+            raise MessageError(
+                f"truncated {self._what}: {len(self._view)} bytes, {name} needs {end}"
+            )
+        out = fmt.unpack_from(self._view, self._pos)
+        self._pos = end
+        return out
+
+    def take(self, n: int, name: str) -> memoryview:
+        end = self._pos + n
+        if end > len(self._view):
+            raise MessageError(
+                f"truncated {self._what}: {name} claims {n} bytes, "
+                f"only {len(self._view) - self._pos} left"
+            )
+        out = self._view[self._pos : end]
+        self._pos = end
+        return out
+
+    def finish(self) -> None:
+        extra = len(self._view) - self._pos
+        if extra:
+            raise MessageError(f"{extra} trailing bytes after {self._what}")
+
+
+def columns(fmt: struct.Struct, names: tuple[str, ...]) -> np.dtype[np.void]:
+    """The numpy structured dtype that views packed ``fmt`` records as named columns.
+
+    Built from the struct format itself, so a batch of payloads (``np.frombuffer``) reads
+    exactly what :mod:`struct` writes: a wire change is an edit of the format only.
+    """
+    codes = fmt.format.lstrip("<")
+    assert fmt.format.startswith("<") and len(codes) == len(names)
+    dt = np.dtype([(name, "<" + code) for name, code in zip(names, codes, strict=True)])
+    assert dt.itemsize == fmt.size
+    return dt
