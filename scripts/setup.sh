@@ -11,7 +11,7 @@ fi
 if [ ! -f "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
     .venv/bin/python -m pip install --quiet --disable-pip-version-check \
-        -c constraints.txt -e ".[train,sim,dev]"
+        -c constraints.txt -e ".[train,sim,foxglove,distributed,dev]"
     rm -f .venv/.installed-*
     touch "$stamp"
 fi
