@@ -1,7 +1,8 @@
 """``patternrl swap``: hot-swap the brain of running robots and report every answer.
 
-1. Reads the brain: ``rule:assign``, or an ``.onnx`` with its manifest (the
-   sidecar ``<stem>.json``, else the ONNX metadata). The robots are the judges
+1. Reads the brain (:func:`runtime.brain.read_brain_file`): ``rule:assign``,
+   or an ``.onnx`` with its manifest (the sidecar ``<stem>.json``, else the
+   ONNX metadata). The robots are the judges
    of a brain, so by default nothing else is checked here (``--check``
    validates it locally first and refuses to send an invalid one).
 2. Finds the robots of the swarm by their liveliness tokens
