@@ -16,11 +16,14 @@ reads), ``manifest`` and ``act(obs) -> velocities``. Two kinds ship here:
     dt, clipped to v_max). The first baseline, and what exercises the whole
     runtime without a trained brain.
 
-Manifest. Every ONNX brain carries a :class:`BrainManifest` twice: as a
-sidecar ``<stem>.json`` next to ``<stem>.onnx`` (with ``brain_id``), and inside
-the ONNX ``metadata_props`` under :data:`METADATA_KEY` (without ``brain_id``,
-which is the sha256 hex digest of the ONNX bytes and so cannot be inside them).
-:func:`load_brain` prefers the sidecar and falls back on the metadata.
+Manifest (:mod:`runtime.brain_manifest`). Every ONNX brain carries a
+:class:`BrainManifest` twice: as a sidecar ``<stem>.json`` next to
+``<stem>.onnx`` (with ``brain_id``), and inside the ONNX metadata (without).
+:func:`read_brain_file`, the one reader of brain files (the robot's
+:func:`load_brain`, ``patternrl swap`` and the trainer all use it), prefers
+the sidecar and falls back on the metadata. A swap message names a rule brain
+with the manifest ``{"rule": "rule:assign"}`` and no ONNX bytes
+(:func:`load_sent_brain`).
 
 Validation (:func:`validate_brain_bytes`, used for files and for hot swaps)
 refuses a brain with a one-line :class:`BrainError` when its digest does not
@@ -44,9 +47,15 @@ import numpy as np
 import onnxruntime as ort
 from numpy.typing import NDArray
 
-from runtime.errors import InputError
+from runtime.brain_manifest import (
+    FORMAT,  # re-export: moved to runtime.brain_manifest
+    FORMAT_VERSION,  # re-export: moved to runtime.brain_manifest
+    METADATA_KEY,  # re-export: moved to runtime.brain_manifest
+    BrainError,  # re-export: moved to runtime.brain_manifest
+    BrainManifest,  # re-export: moved to runtime.brain_manifest
+    error_line,
+)
 from runtime.observation import (
-    ObservationError,
     ObservationSpec,
     general_observation,
     paper_observation,
@@ -61,37 +70,33 @@ __all__ = [
     "RULE_ASSIGN",
     "Brain",
     "BrainError",
+    "BrainFile",
     "BrainManifest",
     "OnnxBrain",
     "RuleBrain",
     "brain_digest",
     "load_brain",
+    "load_sent_brain",
+    "open_brain",
     "probe_observations",
+    "read_brain_file",
+    "short_id",
     "sidecar_path",
     "validate_brain_bytes",
 ]
 
 
-FORMAT: Final = "patternrl-brain"
-FORMAT_VERSION: Final = 1
-METADATA_KEY: Final = "patternrl_manifest"
+RULE_PREFIX: Final = "rule:"
 RULE_ASSIGN: Final = "rule:assign"
+RULES: Final = (RULE_ASSIGN,)
+RULE_KEY: Final = "rule"
+"""The key of the manifest a swap sends for a rule brain: ``{"rule": "rule:assign"}``."""
 INPUT_NAME: Final = "obs"
 ACTION_NAME: Final = "action"
 STD_NAME: Final = "std"
 N_PROBES: Final = 32
 PROBE_SEED: Final = 20240917
 WARM_RUNS: Final = 20
-
-
-class BrainError(InputError):
-    """A brain that cannot be used; the message is one line."""
-
-
-def _one_line(e: BaseException | str) -> str:
-    text = str(e).strip()
-    first = text.splitlines()[0] if text else type(e).__name__
-    return first[:300]
 
 
 def brain_digest(onnx_bytes: bytes) -> str:
@@ -103,136 +108,6 @@ def sidecar_path(onnx_path: str | Path) -> Path:
     """The manifest file of a brain: ``<stem>.json`` next to ``<stem>.onnx``."""
     p = Path(onnx_path)
     return p.with_suffix(".json")
-
-
-# ----------------------------------------------------------------------- manifest
-
-
-@dataclass
-class BrainManifest:
-    """What a brain is: its observation and action specs, provenance and scores."""
-
-    observation: ObservationSpec
-    action: dict[str, Any] = field(
-        default_factory=lambda: {
-            "kind": "cartesian",
-            "v_max_mps": DEFAULT_WORLD.v_max_mps,
-            "dt_s": DEFAULT_WORLD.dt_s,
-        }
-    )
-    brain_id: str = ""
-    file: str = ""
-    pattern: str | None = None
-    n_robots: int | None = None
-    world: dict[str, Any] = field(default_factory=dict)
-    training: dict[str, Any] = field(default_factory=dict)
-    evaluation: dict[str, Any] = field(default_factory=dict)
-    format: str = FORMAT
-    format_version: int = FORMAT_VERSION
-
-    def to_dict(self, *, with_id: bool = True) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "format": self.format,
-            "format_version": self.format_version,
-        }
-        if with_id:
-            d["brain_id"] = self.brain_id
-        d.update(
-            file=self.file,
-            observation=self.observation.to_dict(),
-            action=dict(self.action),
-            pattern=self.pattern,
-            n_robots=self.n_robots,
-            world=dict(self.world),
-            training=dict(self.training),
-            evaluation=dict(self.evaluation),
-        )
-        return d
-
-    def to_json(self, *, with_id: bool = True, indent: int | None = 2) -> str:
-        """JSON text; ``with_id=False`` is what goes into the ONNX metadata."""
-        return json.dumps(self.to_dict(with_id=with_id), indent=indent, allow_nan=False)
-
-    @staticmethod
-    def from_dict(d: object) -> BrainManifest:
-        """Parse and check a manifest; raises :class:`BrainError` with a one-line reason."""
-        if not isinstance(d, dict):
-            raise BrainError(f"manifest must be a JSON object, got {type(d).__name__}")
-        fmt = d.get("format")
-        if fmt != FORMAT:
-            raise BrainError(f"manifest format is {fmt!r}, expected {FORMAT!r}")
-        ver = d.get("format_version")
-        if ver != FORMAT_VERSION:
-            raise BrainError(
-                f"manifest format_version {ver!r} unsupported (reads {FORMAT_VERSION})"
-            )
-        obs = d.get("observation")
-        if not isinstance(obs, dict):
-            raise BrainError("manifest lacks an 'observation' object")
-        try:
-            spec = ObservationSpec.from_dict(obs)
-        except ObservationError as e:
-            raise BrainError(f"manifest observation: {_one_line(e)}") from None
-        action = d.get("action")
-        if not isinstance(action, dict):
-            raise BrainError("manifest lacks an 'action' object")
-        if action.get("kind") != "cartesian":
-            raise BrainError(f"manifest action kind {action.get('kind')!r} unsupported")
-        for key in ("v_max_mps", "dt_s"):
-            v = action.get(key)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float))
-                or not (math.isfinite(v) and v > 0)
-            ):
-                raise BrainError(f"manifest action.{key} must be a positive number, got {v!r}")
-        brain_id = d.get("brain_id", "")
-        if not isinstance(brain_id, str):
-            raise BrainError("manifest brain_id must be a string")
-        pattern = d.get("pattern")
-        if pattern is not None and not isinstance(pattern, str):
-            raise BrainError("manifest pattern must be a string or null")
-        n_robots = d.get("n_robots")
-        if n_robots is not None and (
-            isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 1
-        ):
-            raise BrainError("manifest n_robots must be a positive int or null")
-        dicts: dict[str, dict[str, Any]] = {}
-        for key in ("world", "training", "evaluation"):
-            v = d.get(key, {})
-            if v is None:
-                v = {}
-            if not isinstance(v, dict):
-                raise BrainError(f"manifest {key} must be an object")
-            dicts[key] = v
-        file = d.get("file", "")
-        return BrainManifest(
-            observation=spec,
-            action=dict(action),
-            brain_id=brain_id,
-            file=str(file) if file is not None else "",
-            pattern=pattern,
-            n_robots=n_robots,
-            world=dicts["world"],
-            training=dicts["training"],
-            evaluation=dicts["evaluation"],
-        )
-
-    @staticmethod
-    def from_json(text: str | bytes) -> BrainManifest:
-        try:
-            d = json.loads(text)
-        except (ValueError, RecursionError) as e:
-            raise BrainError(f"manifest is not valid JSON: {_one_line(e)}") from None
-        return BrainManifest.from_dict(d)
-
-    @property
-    def v_max_mps(self) -> float:
-        return float(self.action["v_max_mps"])
-
-    @property
-    def dt_s(self) -> float:
-        return float(self.action["dt_s"])
 
 
 # -------------------------------------------------------------------- interface
@@ -296,7 +171,7 @@ def _new_session(onnx_bytes: bytes) -> ort.InferenceSession:
             onnx_bytes, sess_options=_session_options(), providers=["CPUExecutionProvider"]
         )
     except Exception as e:  # onnxruntime raises several private exception types
-        raise BrainError(f"onnxruntime cannot load the brain: {_one_line(e)}") from None
+        raise BrainError(f"onnxruntime cannot load the brain: {error_line(e)}") from None
 
 
 class OnnxBrain:
@@ -442,7 +317,7 @@ def _probe(brain: OnnxBrain, world: WorldConfig) -> None:
     except BrainError:
         raise
     except Exception as e:
-        raise BrainError(f"brain failed on probe observations: {_one_line(e)}") from None
+        raise BrainError(f"brain failed on probe observations: {error_line(e)}") from None
     if batch.shape != (len(probes), 2):
         raise BrainError(
             f"brain answered shape {list(batch.shape)} for {len(probes)} probes, "
@@ -480,7 +355,17 @@ def validate_brain_bytes(
     inputs/outputs that do not match the manifest's observation spec, and
     non-finite outputs on :func:`probe_observations`.
     """
-    digest = brain_digest(bytes(onnx_bytes))
+    return _validate_bytes(bytes(onnx_bytes), manifest, expected_digest, world, None)
+
+
+def _validate_bytes(
+    data: bytes,
+    manifest: BrainManifest,
+    expected_digest: str,
+    world: WorldConfig,
+    session: ort.InferenceSession | None,
+) -> OnnxBrain:
+    digest = brain_digest(data)
     if digest != expected_digest:
         raise BrainError(
             f"digest mismatch: bytes hash to {digest[:12]}, expected {expected_digest[:12]}"
@@ -489,10 +374,95 @@ def validate_brain_bytes(
         raise BrainError(
             f"digest mismatch: bytes hash to {digest[:12]}, manifest says {manifest.brain_id[:12]}"
         )
-    session = _new_session(bytes(onnx_bytes))
+    if session is None:
+        session = _new_session(data)
     brain = _validate_session(session, manifest, digest, world)
     manifest.brain_id = digest
     return brain
+
+
+# -------------------------------------------------------------- reading a brain file
+
+
+@dataclass(frozen=True)
+class BrainFile:
+    """A brain as named on a command line, read but not yet validated.
+
+    ``data`` is the ONNX bytes (empty for a rule brain), ``manifest`` its
+    manifest (None for a rule brain) with ``file`` filled in, and ``brain_id``
+    the manifest's id, else the sha256 of ``data`` (the rule's name for a rule
+    brain). A sidecar may name other bytes than ``data``: the robots judge that.
+    """
+
+    ref: str
+    data: bytes
+    manifest: BrainManifest | None
+    brain_id: str
+    # the onnxruntime session opened to read the metadata, reused to validate
+    session: ort.InferenceSession | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def rule(self) -> str | None:
+        """The rule's name (``rule:assign``) for a rule brain, else None."""
+        return self.ref if self.manifest is None else None
+
+    def wire_manifest(self) -> str:
+        """The manifest text a brain swap carries: see :func:`load_sent_brain`."""
+        if self.manifest is None:
+            return json.dumps({RULE_KEY: self.ref})
+        return self.manifest.to_json(indent=None)
+
+
+def _known_rule(ref: str) -> str:
+    if ref not in RULES:
+        raise BrainError(f"unknown rule brain '{ref}' (known: {', '.join(RULES)})")
+    return ref
+
+
+def read_brain_file(ref: str, *, sidecar: bool = True) -> BrainFile:
+    """Read ``rule:assign`` or an ``.onnx`` brain with its manifest: the one brain reader.
+
+    The manifest is the sidecar ``<stem>.json`` when there is one (and
+    ``sidecar``), else the ONNX metadata under :data:`METADATA_KEY`. Raises
+    :class:`BrainError` with a one-line reason: unknown rule, missing or
+    unreadable file, no manifest, a manifest that does not parse.
+    """
+    if ref.startswith(RULE_PREFIX):
+        return BrainFile(_known_rule(ref), b"", None, ref)
+    path = Path(ref)
+    if not path.is_file():
+        raise BrainError(f"brain file not found: {ref}")
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise BrainError(f"cannot read brain {ref}: {error_line(e)}") from None
+    session = None
+    side = sidecar_path(path)
+    if sidecar and side.is_file() and side != path:
+        try:
+            text = side.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as e:
+            raise BrainError(f"cannot read manifest {side}: {error_line(e)}") from None
+        manifest = BrainManifest.from_json(text)
+    else:
+        session = _new_session(data)
+        meta = session.get_modelmeta().custom_metadata_map
+        if METADATA_KEY not in meta:
+            raise BrainError(f"brain {ref} has no manifest: neither {side.name} nor ONNX metadata")
+        manifest = BrainManifest.from_json(meta[METADATA_KEY])
+    if not manifest.brain_id:
+        manifest.brain_id = brain_digest(data)
+    if not manifest.file:
+        manifest.file = path.name
+    return BrainFile(ref, data, manifest, manifest.brain_id, session)
+
+
+def open_brain(file: BrainFile, world: WorldConfig = DEFAULT_WORLD) -> Brain:
+    """The brain of a :class:`BrainFile`, validated and warmed (:func:`validate_brain_bytes`)."""
+    if file.manifest is None:
+        _known_rule(file.ref)
+        return RuleBrain(world)  # RULES holds rule:assign alone
+    return _validate_bytes(file.data, file.manifest, file.brain_id, world, file.session)
 
 
 def load_brain(ref: str, world: WorldConfig = DEFAULT_WORLD) -> Brain:
@@ -500,36 +470,30 @@ def load_brain(ref: str, world: WorldConfig = DEFAULT_WORLD) -> Brain:
 
     Raises :class:`BrainError` with a one-line reason for anything unusable.
     """
-    if ref.startswith("rule:"):
-        if ref == RULE_ASSIGN:
-            return RuleBrain(world)
-        raise BrainError(f"unknown rule brain '{ref}' (known: {RULE_ASSIGN})")
-    path = Path(ref)
-    if not path.is_file():
-        raise BrainError(f"brain file not found: {ref}")
+    return open_brain(read_brain_file(ref), world)
+
+
+def load_sent_brain(
+    manifest_json: str, onnx_bytes: bytes, world: WorldConfig = DEFAULT_WORLD
+) -> Brain:
+    """The brain a swap message carries, validated; :class:`BrainError` if unusable.
+
+    The convention (:meth:`BrainFile.wire_manifest`): a manifest ``{"rule":
+    "rule:assign"}`` with no ONNX bytes names a rule brain; anything else is a
+    :class:`BrainManifest` whose ``brain_id`` the bytes must hash to.
+    """
     try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise BrainError(f"cannot read brain {ref}: {_one_line(e)}") from None
-    digest = brain_digest(data)
-    side = sidecar_path(path)
-    if side.is_file() and side != path:
-        try:
-            text = side.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise BrainError(f"cannot read manifest {side}: {_one_line(e)}") from None
-        manifest = BrainManifest.from_json(text)
-        return validate_brain_bytes(data, manifest, manifest.brain_id or digest, world)
-    session = _new_session(data)
-    meta = session.get_modelmeta().custom_metadata_map
-    if METADATA_KEY not in meta:
-        raise BrainError(f"brain {ref} has no manifest: neither {side.name} nor ONNX metadata")
-    manifest = BrainManifest.from_json(meta[METADATA_KEY])
-    if manifest.brain_id and manifest.brain_id != digest:
-        raise BrainError(
-            f"digest mismatch: bytes hash to {digest[:12]}, manifest says {manifest.brain_id[:12]}"
-        )
-    manifest.brain_id = digest
-    if not manifest.file:
-        manifest.file = path.name
-    return _validate_session(session, manifest, digest, world)
+        raw = json.loads(manifest_json)
+    except (ValueError, RecursionError):
+        raw = None
+    if isinstance(raw, dict) and RULE_KEY in raw and not onnx_bytes:
+        return open_brain(read_brain_file(str(raw[RULE_KEY])), world)
+    manifest = BrainManifest.from_json(manifest_json)
+    if not manifest.brain_id:
+        raise BrainError("manifest has no brain_id (the sha256 of the ONNX bytes)")
+    return validate_brain_bytes(onnx_bytes, manifest, manifest.brain_id, world)
+
+
+def short_id(brain_id: str) -> str:
+    """A brain id for people: a rule's name, or the first 12 hex digits of a digest."""
+    return brain_id if brain_id.startswith(RULE_PREFIX) else brain_id[:12]

@@ -38,10 +38,7 @@ _ANY_KEY_RE: Final = re.compile(
     r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status)"
     r"|(pattern|brain)|alive/([A-Za-z0-9_-]+))"
 )
-_ROBOT_KEY_RE: Final = re.compile(
-    r"patternrl/[A-Za-z0-9_-]+/(?:robot/(0|[1-9][0-9]*)/(?:pose|cmd|status)"
-    r"|alive/(0|[1-9][0-9]*))"
-)
+_ROBOT_ID_RE: Final = re.compile(r"0|[1-9][0-9]*")
 
 
 def validate_swarm(swarm: str) -> str:
@@ -130,13 +127,8 @@ def parse_robot_id(key: str) -> int | None:
     ``None`` for any key not built by this module for one robot: another prefix, an
     invalid swarm name, a wildcard, a non-decimal or zero-padded id, the world's alive key.
     """
-    if not isinstance(key, str):
-        return None
-    m = _ROBOT_KEY_RE.fullmatch(key)
-    if m is None:
-        return None
-    digits = m.group(1) if m.group(1) is not None else m.group(2)
-    return int(digits)
+    k = parse_key(key)
+    return None if k is None else k.robot_id
 
 
 class Key(NamedTuple):
@@ -169,7 +161,7 @@ def parse_key(key: str) -> Key | None:
         return Key(swarm, channel, int(rid))
     if shared is not None:
         return Key(swarm, shared, None)
-    robot = int(alive) if re.fullmatch(r"0|[1-9][0-9]*", alive) else None
+    robot = int(alive) if _ROBOT_ID_RE.fullmatch(alive) else None
     return Key(swarm, ALIVE, robot, alive)
 
 

@@ -1,7 +1,8 @@
 """``patternrl swap``: hot-swap the brain of running robots and report every answer.
 
-1. Reads the brain: ``rule:assign``, or an ``.onnx`` with its manifest (the
-   sidecar ``<stem>.json``, else the ONNX metadata). The robots are the judges
+1. Reads the brain (:func:`runtime.brain.read_brain_file`): ``rule:assign``,
+   or an ``.onnx`` with its manifest (the sidecar ``<stem>.json``, else the
+   ONNX metadata). The robots are the judges
    of a brain, so by default nothing else is checked here (``--check``
    validates it locally first and refuses to send an invalid one).
 2. Finds the robots of the swarm by their liveliness tokens
@@ -27,21 +28,12 @@ import threading
 import time
 import uuid
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
-import onnxruntime as ort
 import zenoh
 
 from runtime import keys
-from runtime.brain import (
-    METADATA_KEY,
-    BrainError,
-    BrainManifest,
-    brain_digest,
-    load_brain,
-    sidecar_path,
-)
+from runtime.brain import BrainError, open_brain, read_brain_file, short_id
 from runtime.errors import InputError
 from runtime.messages import BrainMsg, MessageError, decode_status, encode_brain
 from runtime.zenoh_session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
@@ -86,42 +78,14 @@ def parse_robots(spec: str) -> set[int]:
 
 
 def read_brain(ref: str, check: bool = False) -> tuple[str, bytes, str]:
-    """(manifest_json, onnx_bytes, brain_id) to send for ``ref``; BrainError if unreadable."""
-    if ref.startswith("rule:"):
-        brain = load_brain(ref)
-        return json.dumps({"rule": ref}), b"", brain.brain_id
-    path = Path(ref)
-    if not path.is_file():
-        raise BrainError(f"brain file not found: {ref}")
+    """(manifest_json, onnx_bytes, brain_id) to send for ``ref``; BrainError if unreadable.
+
+    ``check``: validate the brain here as a robot would (raises BrainError).
+    """
+    brain = read_brain_file(ref)
     if check:
-        load_brain(ref)  # full validation, raises BrainError
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise BrainError(f"cannot read brain {ref}: {e}") from None
-    side = sidecar_path(path)
-    if side.is_file() and side != path:
-        try:
-            manifest = BrainManifest.from_json(side.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError) as e:
-            raise BrainError(f"cannot read manifest {side}: {e}") from None
-    else:
-        try:
-            sess = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
-        except Exception as e:
-            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise BrainError(
-                f"no manifest beside {ref} and onnxruntime cannot read it: {first}"
-            ) from None
-        meta = sess.get_modelmeta().custom_metadata_map
-        if METADATA_KEY not in meta:
-            raise BrainError(f"brain {ref} has no manifest: neither {side.name} nor ONNX metadata")
-        manifest = BrainManifest.from_json(meta[METADATA_KEY])
-    if not manifest.brain_id:
-        manifest.brain_id = brain_digest(data)
-    if not manifest.file:
-        manifest.file = path.name
-    return manifest.to_json(indent=None), data, manifest.brain_id
+        open_brain(brain)
+    return brain.wire_manifest(), brain.data, brain.brain_id
 
 
 def _discover(
@@ -135,19 +99,17 @@ def _discover(
     def on_token(sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:
             return
-        rid = keys.parse_robot_id(str(sample.key_expr))
-        if rid is None:
-            return
+        key = keys.parse_key(str(sample.key_expr))
+        if key is None or key.kind != keys.ALIVE or key.robot_id is None:
+            return  # the world's token, or not a key of ours
         with lock:
-            found.add(rid)
+            found.add(key.robot_id)
             if wanted is not None and wanted <= found:
                 done.set()
 
-    sub = session.liveliness().declare_subscriber(keys.all_alive(swarm), on_token, history=True)
-    try:
+    alive = keys.all_alive(swarm)
+    with session.liveliness().declare_subscriber(alive, on_token, history=True):
         done.wait(window_s)
-    finally:
-        sub.undeclare()  # type: ignore[no-untyped-call]
     with lock:
         return set(found)
 
@@ -188,8 +150,7 @@ def swap_brain(
             if all(x.answered for x in answers.values()):
                 all_in.set()
 
-    sub = session.declare_subscriber(keys.all_status(swarm), on_status)
-    try:
+    with session.declare_subscriber(keys.all_status(swarm), on_status):
         deadline = time.monotonic() + timeout_s
         pending = list(targets)
         while True:
@@ -203,14 +164,8 @@ def swap_brain(
             if not pending:
                 break
         all_in.wait(max(0.0, deadline - time.monotonic()))
-    finally:
-        sub.undeclare()  # type: ignore[no-untyped-call]
     with lock:
         return {r: SwapAnswer(**asdict(a)) for r, a in answers.items()}
-
-
-def _short(brain_id: str) -> str:
-    return brain_id if brain_id.startswith("rule:") else brain_id[:12]
 
 
 def _result(a: SwapAnswer, timeout_s: float) -> str:
@@ -228,8 +183,8 @@ def format_table(answers: dict[int, SwapAnswer], timeout_s: float) -> str:
         rows.append(
             (
                 str(r),
-                _short(a.old_brain) if a.answered else "-",
-                _short(a.new_brain) if a.answered else "-",
+                short_id(a.old_brain) if a.answered else "-",
+                short_id(a.new_brain) if a.answered else "-",
                 _result(a, timeout_s),
             )
         )
@@ -279,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
     except ZenohSetupError as e:
         print(f"patternrl swap: error: {e}", file=sys.stderr)
         return 2
-    try:
+    with session:
         answers = swap_brain(
             session,
             args.swarm,
@@ -290,8 +245,6 @@ def run(args: argparse.Namespace) -> int:
             args.discover_s,
             args.resend_s,
         )
-    finally:
-        session.close()  # type: ignore[no-untyped-call]
     ok = bool(answers) and all(a.answered and a.accepted for a in answers.values())
     if args.json:
         out: dict[str, Any] = {

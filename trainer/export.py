@@ -35,7 +35,14 @@ import onnx
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
-from runtime.brain import METADATA_KEY, BrainError, BrainManifest, brain_digest, sidecar_path
+from runtime.brain import (
+    METADATA_KEY,
+    BrainError,
+    BrainManifest,
+    brain_digest,
+    read_brain_file,
+    sidecar_path,
+)
 from runtime.errors import InputError
 from trainer.config import TrainConfig
 from trainer.networks import NORM_CLIP, Agent
@@ -148,18 +155,13 @@ def write_brain(agent: Agent, path: str | Path, manifest: BrainManifest) -> Brai
 def read_manifest(path: str | Path) -> BrainManifest:
     """The manifest embedded in an ONNX brain, ``brain_id`` recomputed from its bytes."""
     try:
-        data = Path(path).read_bytes()
-        model = onnx.load_from_string(data)
-    except Exception as e:  # onnx raises DecodeError and friends
-        raise BrainFileError(f"cannot read brain {path}: {e}") from None
-    props = {p.key: p.value for p in model.metadata_props}
-    if METADATA_KEY not in props:
-        raise BrainFileError(f"{path} is not a Pattern-RL brain (no {METADATA_KEY} metadata)")
-    try:
-        manifest = BrainManifest.from_json(props[METADATA_KEY])
+        brain = read_brain_file(str(path), sidecar=False)
     except BrainError as e:
-        raise BrainFileError(f"{path}: {e}") from None
-    manifest.brain_id = brain_digest(data)
+        raise BrainFileError(str(e)) from None
+    manifest = brain.manifest
+    if manifest is None:
+        raise BrainFileError(f"{path} is a rule brain, not a brain file")
+    manifest.brain_id = brain_digest(brain.data)
     return manifest
 
 

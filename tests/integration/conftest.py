@@ -10,6 +10,7 @@ conditions with timeouts; nothing sleeps a fixed time.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -65,14 +66,18 @@ class StubWorld:
         self.alive: set[int] = set()
         self.bad_cmds = 0
         self.pose_times: dict[int, float] = {}
-        self._decls: list[Any] = [
+        # declarations live until close(), undeclared in reverse order before the session closes
+        self._decls = contextlib.ExitStack()
+        self._decls.enter_context(self.session)
+        for d in (
             self.session.declare_subscriber(keys.all_cmds(swarm), self._on_cmd),
             self.session.declare_subscriber(keys.all_status(swarm), self._on_status),
             self.session.liveliness().declare_subscriber(
                 keys.all_alive(swarm), self._on_alive, history=True
             ),
             self.session.liveliness().declare_token(keys.alive_key(swarm, keys.WORLD_ID)),
-        ]
+        ):
+            self._decls.enter_context(d)
         self._pubs: dict[int, Any] = {}
         self.pattern_version = 0
 
@@ -100,8 +105,9 @@ class StubWorld:
             self.cond.notify_all()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        rid = keys.parse_robot_id(str(sample.key_expr))
-        if rid is None:
+        key = keys.parse_key(str(sample.key_expr))
+        rid = None if key is None else key.robot_id
+        if rid is None:  # the world's own token, or not a key of ours
             return
         with self.cond:
             if sample.kind == zenoh.SampleKind.PUT:
@@ -126,8 +132,8 @@ class StubWorld:
         for rid, (x, y) in zip(ids, pos.tolist(), strict=True):
             pub = self._pubs.get(rid)
             if pub is None:
-                pub = self._pubs[rid] = self.session.declare_publisher(
-                    keys.pose_key(self.swarm, rid), express=True
+                pub = self._pubs[rid] = self._decls.enter_context(
+                    self.session.declare_publisher(keys.pose_key(self.swarm, rid), express=True)
                 )
             pub.put(encode_pose(Pose(rid, step, t, x, y, 0.0, 0.0, len(ids))))
 
@@ -178,12 +184,7 @@ class StubWorld:
         return pos + DEFAULT_WORLD.dt_s * v, cmds
 
     def close(self) -> None:
-        for d in reversed(self._decls + list(self._pubs.values())):
-            try:
-                d.undeclare()
-            except Exception:
-                pass
-        self.session.close()
+        self._decls.close()
 
 
 class RobotProc:

@@ -95,3 +95,19 @@ def test_agent_from_onnx_refuses_the_wrong_algorithm_and_garbage(tmp_path) -> No
     bad.write_bytes(b"not an onnx file")
     with pytest.raises(BrainFileError):
         agent_from_onnx(bad, TrainConfig(), 1.0)
+
+
+def test_read_manifest_reads_the_embedded_manifest_only(tmp_path) -> None:
+    path = tmp_path / "b.onnx"
+    manifest = BrainManifest(observation=ObservationSpec("general"))
+    written = write_brain(_agent("ppo"), path, manifest)
+    side = json.loads(path.with_suffix(".json").read_text())
+    side["pattern"] = "heart"  # a sidecar that disagrees is not what the file embeds
+    path.with_suffix(".json").write_text(json.dumps(side))
+    embedded = read_manifest(path)
+    assert embedded.pattern is None and embedded.brain_id == written.brain_id
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not an onnx file")
+    for ref in (bad, tmp_path / "absent.onnx", "rule:assign"):
+        with pytest.raises(BrainFileError):
+            read_manifest(ref)

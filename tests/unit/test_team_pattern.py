@@ -1,0 +1,74 @@
+"""Which target a team forms: fitting a pattern message, and the robot's pattern policy."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.brain import RuleBrain, load_brain
+from runtime.messages import PatternMsg
+from runtime.patterns import PatternError, make_pattern
+from runtime.team_pattern import TeamPattern, fit_pattern
+
+EXPORTS = Path(__file__).resolve().parents[2] / "exports"
+
+
+def msg(version: int, name: str, points: np.ndarray) -> PatternMsg:
+    return PatternMsg(version, name, points, 0.025)
+
+
+def test_fit_pattern_keeps_rebuilds_or_resamples() -> None:
+    pts = make_pattern("circle", 6)
+    np.testing.assert_array_equal(fit_pattern("circle", pts, 6), pts)
+    np.testing.assert_allclose(fit_pattern("circle", pts, 8), make_pattern("circle", 8))
+    line = np.array([[0.0, 0.0], [3.0, 0.0]])
+    np.testing.assert_allclose(fit_pattern("custom", line, 4)[:, 0], [0.0, 1.0, 2.0, 3.0])
+    with pytest.raises(PatternError, match="closer than 2R"):
+        fit_pattern("custom", np.array([[0.0, 0.0], [0.1, 0.0]]), 5)
+
+
+def test_default_then_newest_message_cached_per_team_size() -> None:
+    policy = TeamPattern(None)
+    assert policy.for_team(4) == (None, "no pattern yet")
+    policy = TeamPattern("line")
+    pts, why = policy.for_team(4)
+    assert why == "" and pts is not None
+    np.testing.assert_allclose(pts, make_pattern("line", 4))
+    policy.offer(msg(2, "circle", make_pattern("circle", 4)))
+    a, _ = policy.for_team(5)
+    b, _ = policy.for_team(5)
+    assert a is b  # cached for the same message and team size
+    assert a is not None
+    np.testing.assert_allclose(a, make_pattern("circle", 5))
+    policy.offer(msg(1, "cross", make_pattern("cross", 4)))  # older: ignored
+    c, _ = policy.for_team(5)
+    assert c is a
+    with pytest.raises(PatternError, match="fewer than 2 points"):
+        policy.offer(msg(3, "dot", np.zeros((1, 2))))
+    with pytest.raises(PatternError, match="closer than 2R"):
+        policy.offer(msg(3, "dense", np.zeros((4, 2))))
+
+
+def test_an_unfittable_message_gives_no_target_and_why() -> None:
+    policy = TeamPattern("line")
+    policy.offer(msg(1, "custom", make_pattern("line", 3)))
+    pts, why = policy.for_team(40)  # 40 points on a 3-point line come closer than 2R
+    assert pts is None and "closer than 2R" in why
+
+
+def test_a_paper_brain_forms_its_own_pattern_only() -> None:
+    brain = load_brain(str(EXPORTS / "heart-10-paper.onnx"))
+    policy = TeamPattern("line")
+    policy.offer(msg(1, "circle", make_pattern("circle", 10)))
+    policy.use_brain(brain)
+    pts, _ = policy.for_team(10)
+    assert pts is not None
+    np.testing.assert_allclose(pts, make_pattern("heart", 10))
+    pts, why = policy.for_team(9)
+    assert pts is None and why == "brain's pattern has 10 points, team 9"
+    policy.use_brain(RuleBrain())  # any other brain follows the message again
+    pts, _ = policy.for_team(10)
+    assert pts is not None
+    np.testing.assert_allclose(pts, make_pattern("circle", 10))
