@@ -75,6 +75,15 @@ class Frames:
         k = int(np.searchsorted(self.steps, step))
         return k if k < len(self.steps) and self.steps[k] == step else -1
 
+    def at(self, step: int) -> tuple[IntArray, Array]:
+        """(robot ids (k,), positions (k, 2) metres) of the robots with a pose at ``step``,
+        in id order; :class:`KeyError` when no pose of that step was recorded."""
+        k = self.row(step)
+        if k < 0:
+            raise KeyError(step)
+        here = self.present[k]
+        return self.ids[here], self.xy[k, here]
+
     def rows(self, first_step: int, last_step: int) -> IntArray:
         """Rows of the recorded steps in [first_step, last_step]."""
         lo = int(np.searchsorted(self.steps, first_step))

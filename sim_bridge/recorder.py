@@ -34,13 +34,6 @@ from sim_bridge.log_layout import (
     WIRE_SCHEMA_DATA,
     wire_schema,
 )
-from sim_bridge.recorded_run import (
-    LogMessage,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
-    LogScan,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
-    RecordedRun,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
-    iter_log,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
-    read_run,  # noqa: F401  # re-export: moved to sim_bridge.recorded_run
-)
 
 _IDENTITY: Final = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 

@@ -21,17 +21,16 @@ import numpy as np
 import pytest
 
 from runtime.formation import assign_slots, collision_pairs, min_separation, slot_distances
-from runtime.messages import decode_command
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.recorder import iter_log, read_run
+from sim_bridge.log_reader import LogData, read_log
 
 W = DEFAULT_WORLD
 ROBOTS = 4
 pytestmark = pytest.mark.timeout(90)
 
 
-def _poses(run: Any, step: int) -> np.ndarray:
-    return np.array([[run.poses[step][r].x, run.poses[step][r].y] for r in sorted(run.poses[step])])
+def _poses(run: LogData, step: int) -> np.ndarray:
+    return run.frames.at(step)[1]
 
 
 @pytest.mark.parametrize(
@@ -54,16 +53,17 @@ def test_rule_baseline_forms_in_the_world(
     result = json.loads(procs.log("world").strip().splitlines()[-1])
     assert result["all_formed"], result
 
-    run = read_run(log)
-    assert run.scan.complete and run.malformed == 0
+    run = read_log(log)
+    assert run.recovery.finished and run.malformed == 0
     (end,) = run.events_of("phase_end")
     assert end["formed"] and end["n_robots"] == ROBOTS and end["deadline_misses"] == 0
     last = end["end_step"]
-    assert sorted(run.poses) == list(range(last + 1))  # lockstep: every step, every robot
+    assert run.frames.steps.tolist() == list(range(last + 1))  # lockstep: every step
+    assert run.frames.present.all()  # and every robot at each
 
     # formed, from the poses: every robot within the tolerance of its slot
     (pattern,) = run.patterns
-    C = np.asarray(pattern.points)
+    C = np.asarray(pattern.msg.points)
     P = _poses(run, last)
     assert slot_distances(P, C, assign_slots(P, C)).max() <= W.formed_tol_m
 
@@ -78,9 +78,9 @@ def test_rule_baseline_forms_in_the_world(
     assert sep == pytest.approx(end["min_separation_m"], abs=1e-5)
 
     # the commands on the log: every one from rule:assign, the filter in the loop or not
-    cmds = [decode_command(m.data) for m in iter_log(log) if m.schema == "patternrl.Command"]
-    assert len(cmds) >= ROBOTS * last and {c.brain_id for c in cmds} == {"rule:assign"}
-    changed = sum(c.safety_changed for c in cmds)
+    cmds = run.commands
+    assert len(cmds.step) >= ROBOTS * last and set(cmds.brain) == {"rule:assign"}
+    changed = int(cmds.safety_changed.sum())
     if safety == "off":
         assert changed == 0
     else:

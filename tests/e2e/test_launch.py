@@ -19,7 +19,7 @@ import pytest
 
 from runtime.formation import assign_slots, formation_error, slot_distances
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.recorder import RecordedRun, read_run
+from sim_bridge.log_reader import LogData, read_log
 
 TOL = DEFAULT_WORLD.formed_tol_m
 pytestmark = pytest.mark.timeout(120)
@@ -29,7 +29,7 @@ def swarm_name(tag: str) -> str:
     return f"e2e-{tag}-{os.getpid()}"
 
 
-def phase_end_errors(run: RecordedRun) -> list[tuple[int, float, float]]:
+def phase_end_errors(run: LogData) -> list[tuple[int, float, float]]:
     """(robots, formation error, farthest robot from its slot) at the end of each phase,
     from the poses on the log and the pattern in force (the last one published)."""
     out = []
@@ -39,8 +39,7 @@ def phase_end_errors(run: RecordedRun) -> list[tuple[int, float, float]]:
             pattern = np.asarray(e["points"])
         if e["kind"] != "phase_end":
             continue
-        poses = run.poses[e["end_step"]]
-        P = np.array([[poses[r].x, poses[r].y] for r in sorted(poses)])
+        _, P = run.frames.at(e["end_step"])
         assert pattern is not None and len(pattern) == len(P)
         far = float(slot_distances(P, pattern, assign_slots(P, pattern)).max())
         out.append((len(P), formation_error(P, pattern), far))
@@ -60,8 +59,8 @@ def test_world_and_robots_form_two_patterns_in_lockstep(
     result = json.loads(procs.log("world").strip().splitlines()[-1])
     assert result["all_formed"] and [p["pattern"] for p in result["phases"]] == ["circle", "line"]
 
-    run = read_run(log)
-    assert run.scan.complete and run.malformed == 0
+    run = read_log(log)
+    assert run.recovery.finished and run.malformed == 0
     assert len(run.events_of("join")) == 5
     ends = run.events_of("phase_end")
     assert [e["formed"] for e in ends] == [True, True]
@@ -69,10 +68,10 @@ def test_world_and_robots_form_two_patterns_in_lockstep(
         assert n == 5 and err <= TOL and far <= TOL, (err, far)
     # lockstep: every step has every robot's pose, and the robots answered the steps
     last = ends[-1]["end_step"]
-    assert sorted(run.poses) == list(range(last + 1))
-    assert all(len(run.poses[s]) == 5 for s in run.poses)
+    assert run.frames.steps.tolist() == list(range(last + 1))
+    assert run.frames.present.sum(axis=1).tolist() == [5] * (last + 1)
     misses = sum(e["deadline_misses"] for e in ends)
-    assert run.commands >= 5 * last - misses
+    assert len(run.commands.step) >= 5 * last - misses
     assert run.topics["/world/scene"] == run.topics["/world/metrics"] == last
     assert run.events_of("run_end")[0]["outcome"] == "done"
 
@@ -90,7 +89,7 @@ def test_robot_killed_mid_run_others_reform(procs: Any, tmp_path: Path, kit: Any
         assert world.wait(timeout=90) == 0, procs.log("world")
     finally:
         watcher.close()
-    run = read_run(log)
+    run = read_log(log)
     (leave,) = run.events_of("leave")
     assert leave["robot"] == 2 and leave["n_live"] == 4
     resized = [e for e in run.events_of("pattern") if e["reason"] == "resize"]
@@ -101,7 +100,8 @@ def test_robot_killed_mid_run_others_reform(procs: Any, tmp_path: Path, kit: Any
     assert leave["step"] < ends[0]["end_step"]  # killed mid-phase
     for n, err, far in phase_end_errors(run):
         assert n == 4 and err <= TOL and far <= TOL
-    assert all(2 not in run.poses[s] for s in run.poses if s > leave["step"])
+    after = run.frames.steps > leave["step"]
+    assert after.any() and not run.frames.present[after][:, run.frames.ids == 2].any()
 
 
 def test_world_killed_robots_hold_still_and_exit_log_readable(procs: Any, tmp_path: Path,
@@ -127,9 +127,9 @@ def test_world_killed_robots_hold_still_and_exit_log_readable(procs: Any, tmp_pa
     assert all(c.vx == 0.0 and c.vy == 0.0 for c in last.values()), last
     for i in range(3):
         assert "watchdog" in procs.log(f"robot{i}")
-    run = read_run(log)
-    assert not run.scan.complete  # cut short, read up to its last complete chunk
-    steps = sorted(run.poses)
+    run = read_log(log)
+    assert not run.recovery.finished  # cut short, read up to its last complete chunk
+    steps = run.frames.steps.tolist()
     assert steps and steps == list(range(len(steps)))
     assert run.events_of("run_start") and len(run.events_of("join")) == 3
     assert not run.events_of("run_end")
@@ -146,7 +146,7 @@ def test_late_robot_is_counted_and_never_hangs(procs: Any, tmp_path: Path, kit: 
         assert world.wait(timeout=90) == 0, procs.log("world")
     finally:
         fake.close()
-    run = read_run(log)
+    run = read_log(log)
     (end,) = run.events_of("phase_end")
     assert end["formed"]
     late_steps = {e["for_step"] for e in run.events_of("deadline_miss") if 3 in e["robots"]}
@@ -166,8 +166,9 @@ def test_launch_forms_and_reports(tmp_path: Path, procs: Any, kit: Any) -> None:
     assert "circle" in out and "line" in out and "every pattern formed" in out
     assert "rule:assign" in out
     assert log.with_suffix(".png").stat().st_size > 10_000
-    run = read_run(log)
-    assert run.scan.complete and [e["formed"] for e in run.events_of("phase_end")] == [True, True]
+    run = read_log(log)
+    assert run.recovery.finished
+    assert [e["formed"] for e in run.events_of("phase_end")] == [True, True]
 
 
 def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -> None:
@@ -186,8 +187,8 @@ def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -
     finally:
         watcher.close()
     assert not [k for k in kids if kit.pid_alive(k)]  # no orphans
-    run = read_run(log)
-    assert run.scan.complete  # the log was finished
+    run = read_log(log)
+    assert run.recovery.finished  # the log was finished
     assert run.events_of("run_end")[0]["outcome"] == "interrupted"
     assert "interrupted" in procs.log("launch")
 
@@ -226,7 +227,7 @@ def test_world_swaps_the_patterns_brain_into_every_robot(procs: Any, tmp_path: P
         procs.start(f"robot{i}", "robot", "--swarm", swarm, "--id", str(i), "--zenoh-port",
                     str(port), "--brain", str(wander), "--exit-after-silence-s", "2")
     assert world.wait(timeout=90) == 0, procs.log("world")
-    run = read_run(log)
+    run = read_log(log)
     swaps = run.events_of("brain_swap")
     assert sorted(e["robot"] for e in swaps) == [0, 1, 2, 3]  # once: line keeps the brain
     assert all(e["accepted"] and e["brain"] == "rule:assign" for e in swaps)
@@ -253,7 +254,7 @@ def test_robot_joins_mid_run_is_placed_and_the_pattern_grows(procs: Any, tmp_pat
         assert world.wait(timeout=90) == 0, procs.log("world")
     finally:
         watcher.close()
-    run = read_run(log)
+    run = read_log(log)
     joins = run.events_of("join")
     assert [e["robot"] for e in joins] == [0, 1, 2, 3]
     late = joins[-1]

@@ -21,7 +21,6 @@ from sim_bridge.log_file import iter_messages
 from sim_bridge.log_layout import EVENTS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 from sim_bridge.log_reader import read_log
 from sim_bridge.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
-from sim_bridge.recorded_run import read_run
 from sim_bridge.recorder import Recorder, scene_update
 
 R = DEFAULT_WORLD.radius_m
@@ -193,10 +192,10 @@ def test_recorder_round_trip(tmp_path: Path) -> None:
     assert data.topics[other] == 1
     raw = [(c, p) for c, _, _, _, p in iter_messages(path) if c.topic == other]
     assert raw[0][1] == b"\x00raw" and raw[0][0].schema_name == ""
-    # the per-step view of the same log decodes each message to its wire object
-    run = read_run(path)
-    assert run.scan.complete and run.malformed == 0 and run.commands == 1
-    assert run.poses[7][2] == pose and run.patterns == [pat]
+    ids, xy = fr.at(7)
+    assert ids.tolist() == [2] and xy.tolist() == [[pose.x, pose.y]]
+    with pytest.raises(KeyError):
+        fr.at(6)
     scene = json.loads(next(p for c, _, _, _, p in iter_messages(path) if c.topic == SCENE_TOPIC))
     robot = next(e for e in scene["entities"] if e["id"] == "2")
     cyl = robot["cylinders"][0]

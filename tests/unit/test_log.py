@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from runtime import keys
 from runtime.messages import Command, PatternMsg, Pose, encode_command, encode_pattern, encode_pose
@@ -84,6 +85,22 @@ def test_phases_sliced_from_the_wire_without_events(tmp_path: Path) -> None:
     line, circle = phases_of(data)
     assert (line.name, line.start_step, circle.name, circle.start_step) == ("line", 0, "circle", 3)
     assert [p.version for p in line.patterns] == [1] and line.end_step is None
+
+
+def test_frames_give_the_robots_present_at_a_step_in_id_order(tmp_path: Path) -> None:
+    path = tmp_path / "f.mcap"
+    with Recorder(path) as rec:
+        for step, rids in ((0, (3, 1)), (1, (1,)), (3, (3, 1))):
+            for rid in rids:
+                rec.write_wire(keys.pose_key("s", rid), encode_pose(
+                    Pose(rid, step, step * W.dt_s, 10.0 * rid, float(step), 0.0, 0.0, 2)))
+    fr = read_log(path).frames
+    ids, xy = fr.at(0)
+    assert ids.tolist() == [1, 3] and xy.tolist() == [[10.0, 0.0], [30.0, 0.0]]
+    ids, xy = fr.at(1)
+    assert ids.tolist() == [1] and xy.shape == (1, 2) and xy.tolist() == [[10.0, 1.0]]
+    with pytest.raises(KeyError):
+        fr.at(2)  # no pose of step 2 on the log
 
 
 def test_command_columns_keep_file_order_across_brain_id_lengths() -> None:
