@@ -10,7 +10,7 @@ episode of env ``e`` of a world seeded with ``--seed + n``, so every brain and
 every pattern of a team size starts from the same positions) with
 :func:`trainer.evaluate.evaluate_brain`: the training world
 (:class:`trainer.training_world.BatchWorld`) and the runtime's
-:func:`runtime.controller.decide_batch`, exactly as a robot decides (shared slot
+:func:`runtime.decision.decide_batch`, exactly as a robot decides (shared slot
 assignment with hysteresis, the observation builder, the policy mean, the clamp
 to v_max, the ORCA filter). Four brains on the same episodes:
 

@@ -11,7 +11,7 @@ brains and how long the run took, and the command that regenerates it.
     The ``circle`` pattern with n robots is the regular n-gon (side 4R). Every
     method runs the same episodes through :func:`trainer.evaluate.evaluate_brain`
     (the training world, every decision through the robot's own pipeline,
-    :func:`runtime.controller.decide_batch`); episode ``e`` starts where env ``e``
+    :func:`runtime.decision.decide_batch`); episode ``e`` starts where env ``e``
     of ``BatchWorld(seed)`` starts, whatever the method. Methods:
 
     ================== ==========================================================
@@ -48,7 +48,7 @@ brains and how long the run took, and the command that regenerates it.
 
 (d) Per-decision latency vs the paper's 1.2 ms (IV.B)
     :func:`benchmarks.runtime_latency.decision_latency`: each of 10 robots
-    decides with its own :class:`runtime.controller.Controller` while the team
+    decides with its own :class:`runtime.decision.Controller` while the team
     forms a circle (assignment + observation + brain + filter), wall clock.
 """
 
@@ -696,7 +696,7 @@ def write_doc(ctx: dict[str, Any], path: Path) -> None:
     L += [
         "n robots form the regular n-gon (the `circle` pattern, side 4R) from uniform random "
         "starts in the arena. Methods, all deciding through the robot's own pipeline "
-        "(`runtime.controller.decide_batch`, as `patternrl eval` runs them):", "",
+        "(`runtime.decision.decide_batch`, as `patternrl eval` runs them):", "",
         "- **rule, no filter**: `rule:assign --safety off`, straight to the shared-assignment "
         "slot at v_max (CAPT-style);",
         "- **rule + ORCA(tau)**: `rule:assign --safety orca`, the same slots reached through "

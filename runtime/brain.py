@@ -48,11 +48,9 @@ import onnxruntime as ort
 from numpy.typing import NDArray
 
 from runtime.brain_manifest import (
-    FORMAT,  # re-export: moved to runtime.brain_manifest
-    FORMAT_VERSION,  # re-export: moved to runtime.brain_manifest
-    METADATA_KEY,  # re-export: moved to runtime.brain_manifest
-    BrainError,  # re-export: moved to runtime.brain_manifest
-    BrainManifest,  # re-export: moved to runtime.brain_manifest
+    METADATA_KEY,
+    BrainError,
+    BrainManifest,
     error_line,
 )
 from runtime.observation import (
@@ -64,8 +62,6 @@ from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
-    "FORMAT",
-    "FORMAT_VERSION",
     "METADATA_KEY",
     "RULE_ASSIGN",
     "Brain",
@@ -445,7 +441,10 @@ def read_brain_file(ref: str, *, sidecar: bool = True) -> BrainFile:
             raise BrainError(f"cannot read manifest {side}: {error_line(e)}") from None
         manifest = BrainManifest.from_json(text)
     else:
-        session = _new_session(data)
+        try:
+            session = _new_session(data)
+        except BrainError as e:  # name the file: the user may have given several
+            raise BrainError(f"{ref}: {e}") from None
         meta = session.get_modelmeta().custom_metadata_map
         if METADATA_KEY not in meta:
             raise BrainError(f"brain {ref} has no manifest: neither {side.name} nor ONNX metadata")

@@ -11,7 +11,7 @@ Loop (one thread decides; Zenoh callbacks only store what arrives):
   older than ``--stale-s`` are absent.
 
 Nothing waits on another robot's decision. Every decision goes through the
-:class:`runtime.controller.Controller`: shared assignment, the observation the
+:class:`runtime.decision.Controller`: shared assignment, the observation the
 brain's spec names, the brain, clamp to v_max, the ORCA safety filter.
 
 Faults (DESIGN.md section 4): a malformed message on any key is dropped and
@@ -61,7 +61,7 @@ import zenoh
 
 from runtime import keys
 from runtime.brain import Brain, BrainError, load_brain, short_id
-from runtime.controller import Controller, Decision
+from runtime.decision import Controller, Decision
 from runtime.errors import InputError
 from runtime.inbox import PoseInbox, Step
 from runtime.log import Log, one_line

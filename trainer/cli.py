@@ -31,8 +31,9 @@ from trainer.checkpoints import InitError
 from trainer.config import ALGOS, PAPER_LRS, TrainConfig, obs_spec_for, reward_for
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
+from trainer.reward import PAPER_REWARD
 from trainer.train import RunPlan, artefact_paths, train
-from trainer.training_world import PAPER_REWARD, check_pattern
+from trainer.training_world import check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0
 

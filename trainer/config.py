@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Literal
 
 from runtime.observation import ObservationSpec
-from trainer.training_world import RewardConfig
+from trainer.reward import RewardConfig
 
 Algo = Literal["pattern-rl", "ppo"]
 ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")

@@ -71,7 +71,7 @@ from runtime.patterns import make_pattern, random_pattern
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.contacts import move
-from trainer.reward import (  # re-export: moved to trainer.reward
+from trainer.reward import (
     DEFAULT_REWARD,
     PAPER_REWARD,
     RewardConfig,

@@ -6,7 +6,7 @@
 a pattern file written here (a block arrow: a closed polygon with corners, which
 the training shapes, smooth closed curves, open polylines and scattered points,
 are not). The verdict comes from the MCAP log alone
-(:func:`sim_bridge.analysis.report_log` recomputes every figure from the poses):
+(:func:`sim_bridge.log_report.report_log` recomputes every figure from the poses):
 formed, no collision, every command from the general brain.
 
 The brain is a shipped file: when it is missing the test fails (it does not
@@ -46,7 +46,7 @@ def shipped_general_brain() -> Path:
 def test_general_brain_forms_an_unseen_shape_over_zenoh(procs: Any, tmp_path: Path,
                                                         kit: Any) -> None:
     from runtime.patterns import make_pattern
-    from sim_bridge.analysis import report_log
+    from sim_bridge.log_report import report_log
 
     brain_path = shipped_general_brain()
     brain = load_brain(str(brain_path))

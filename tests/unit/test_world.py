@@ -23,7 +23,8 @@ from runtime.observation import ObservationSpec, general_observation, paper_obse
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
 from trainer.contacts import CONTACT_TOL_M
-from trainer.training_world import PAPER_REWARD, BatchWorld, RewardConfig
+from trainer.reward import PAPER_REWARD, RewardConfig
+from trainer.training_world import BatchWorld
 
 W = DEFAULT_WORLD
 TWO_R = W.min_separation_m
