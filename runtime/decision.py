@@ -44,7 +44,7 @@ import numpy as np
 from runtime.brain import Brain
 from runtime.formation import assign_centred, assign_slots_batch, slot_positions
 from runtime.observation import frame_velocities, general_row, observe
-from runtime.safety import OrcaParams, orca_filter
+from runtime.safety import OrcaParams, clamp_speed, orca_filter
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -53,7 +53,6 @@ __all__ = [
     "Controller",
     "Decision",
     "brain_velocities",
-    "clamp_speed",
     "command",
     "decide_batch",
     "frame_velocities",
@@ -102,17 +101,6 @@ class Command(NamedTuple):
 
 
 # ------------------------------------------------------------------- helpers
-
-
-def clamp_speed(vx: float, vy: float, v_max: float) -> tuple[float, float]:
-    """(vx, vy) scaled down to norm <= v_max (exactly, both ways of taking the norm)."""
-    sp = math.hypot(vx, vy)
-    if sp > v_max:
-        s = v_max / sp
-        vx, vy = vx * s, vy * s
-        while max(math.hypot(vx, vy), math.sqrt(vx * vx + vy * vy)) > v_max:
-            vx, vy = vx * (1.0 - 1e-15), vy * (1.0 - 1e-15)
-    return vx, vy
 
 
 def neighbour_rows(i: int, L: Rows, V: Rows) -> Neighbours:

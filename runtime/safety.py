@@ -115,6 +115,17 @@ class FilterResult:
 # --------------------------------------------------------------------------
 
 
+def clamp_speed(vx: float, vy: float, v_max: float) -> tuple[float, float]:
+    """(vx, vy) scaled down to norm <= v_max (exactly, both ways of taking the norm)."""
+    sp = math.hypot(vx, vy)
+    if sp > v_max:
+        s = v_max / sp
+        vx, vy = vx * s, vy * s
+        while max(math.hypot(vx, vy), math.sqrt(vx * vx + vy * vy)) > v_max:
+            vx, vy = vx * (1.0 - 1e-15), vy * (1.0 - 1e-15)
+    return vx, vy
+
+
 def _lp1(
     lines: list[_Line],
     line_no: int,
@@ -348,15 +359,8 @@ def _solve(
         rx, ry = _lp(lines, v_max, pref_x, pref_y)
     else:
         rx, ry = pref_x, pref_y
-    # Clamp: the LP stays in the max-speed circle up to rounding; make it exact.
-    # Both ways of taking the norm must give <= v_max.
-    n = math.hypot(rx, ry)
-    if n > v_max:
-        s = v_max / n
-        rx, ry = rx * s, ry * s
-        while max(math.hypot(rx, ry), math.sqrt(rx * rx + ry * ry)) > v_max:
-            rx, ry = rx * (1.0 - 1e-15), ry * (1.0 - 1e-15)
-    return rx, ry
+    # The LP stays in the max-speed circle up to rounding; make it exact.
+    return clamp_speed(rx, ry, v_max)
 
 
 def orca_filter(
