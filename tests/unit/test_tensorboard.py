@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import csv
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
 import tomllib
+from pathlib import Path
 
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -12,6 +18,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from patternrl.cli import main
 from trainer.config import TrainConfig
 from trainer.curve import CURVE_FIELDS, SCALAR_TAGS, TensorBoardCurve
+
+ROOT = Path(__file__).resolve().parents[2]
 
 # rollout_steps = the step limit: every world's first (desynchronised) episode ends in the
 # first iteration, so the rows have training rewards
@@ -86,3 +94,32 @@ def test_a_file_in_the_way_is_one_line_exit_2(tmp_path, capsys) -> None:
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"patternrl train: --tensorboard {blocker}: not a directory"]
+
+
+def test_ctrl_c_leaves_a_readable_event_file(tmp_path) -> None:
+    logdir = tmp_path / "tb"
+    cmd = [sys.executable, "-m", "patternrl.cli", "train", "--pattern", "circle", *TINY,
+           "--set", "rollout_steps=8", "--time-budget-s", "600", "--no-progress",
+           "--out", str(tmp_path / "b.onnx"), "--tensorboard", str(logdir)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        deadline = time.monotonic() + 120
+        steps: list[int] = []
+        while len(steps) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            if logdir.is_dir():  # the rows are flushed as they come: seen while it trains
+                acc = _events(logdir)
+                if "update/kl" in acc.Tags()["scalars"]:
+                    steps = [e.step for e in acc.Scalars("update/kl")]
+            time.sleep(0.2)  # polling interval, not a wait for a result
+        assert len(steps) >= 2, "no rows appeared while training"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130
+    assert err.strip().splitlines()[-1] == "patternrl train: interrupted"
+    final = [e.step for e in _events(logdir).Scalars("update/kl")]
+    assert final[: len(steps)] == steps and final == list(range(1, len(final) + 1))
