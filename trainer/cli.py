@@ -137,6 +137,7 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
         "configuration, as TensorBoard events under DIR (tensorboard --logdir DIR)",
     )
 
+
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The effective configuration: defaults < ``--config`` < options given < ``--set``.
 
@@ -195,7 +196,15 @@ def run(args: argparse.Namespace) -> int:
         cfg = config_from_args(args)
     except ValueError as e:
         return _fail(str(e))
+    if args.resume and (args.config or args.set):
+        print("patternrl train: note: a resumed run goes on with its checkpoint's "
+              "configuration; --config and --set do not change it", file=sys.stderr)
     if args.print_config:
+        if args.resume:
+            try:
+                cfg = TrainConfig.from_dict(load_checkpoint(Path(args.resume))["config"])
+            except InitError as e:
+                return _fail(str(e))
         print(config_toml(cfg), end="")
         return 0
     try:

@@ -169,3 +169,10 @@ def test_the_manifest_keeps_the_effective_configuration(tmp_path, capsys) -> Non
     assert manifest["training"]["reward"]["formed_bonus"] == 2.0
     assert TrainConfig.from_dict(cfg) == _config("--config", str(f), "--seed", "4", "--set",
                                                  "eval_every=1", "--set", "reward.beta=0.5")
+    # a resumed run goes on with its checkpoint's configuration, and says so
+    ckpt = tmp_path / "tiny.ckpt.pt"
+    capsys.readouterr()
+    assert main(["train", "--resume", str(ckpt), "--set", "seed=99", "--print-config"]) == 0
+    printed, err = capsys.readouterr()
+    assert tomllib.loads(printed)["seed"] == 4
+    assert "checkpoint's configuration" in err and len(err.strip().splitlines()) == 1
