@@ -190,12 +190,9 @@ _POSITIVE_INTS = ("n_robots", "n_envs", "rollout_steps", "minibatch", "latent_di
 _NON_NEGATIVE_INTS = ("seed", "ae_steps", "policy_steps", "value_steps", "eval_seed_offset")
 _POSITIVE_FLOATS = ("lr_ae", "lr_policy", "lr_value", "init_std", "min_std", "max_grad_norm",
                     "kl_target", "kl_coef_init", "kl_coef_min", "kl_coef_max", "clip_coef")
-_UNIT_RANGES: dict[str, tuple[float, float, str]] = {
-    "gamma": (0.0, 1.0, "in (0, 1]"),
-    "gae_lambda": (0.0, 1.0, "in [0, 1]"),
-    "kl_alpha": (0.0, 1.0, "in (0, 1)"),
-    "kl_beta_low": (0.0, 1.0, "in (0, 1]"),
-}
+_UNIT_RANGES = {"gamma": "(0, 1]", "gae_lambda": "[0, 1]", "kl_alpha": "(0, 1)",
+                "kl_beta_low": "(0, 1]"}
+"""Fields within 0..1; a bracket closes the end, a parenthesis opens it."""
 OBS_NAMES: tuple[str, ...] = ("paper", "general")
 
 
@@ -237,11 +234,10 @@ def _check_range(key: str, value: Any, source: str) -> None:
     elif key in _POSITIVE_FLOATS and value <= 0:
         problem = "must be > 0"
     elif key in _UNIT_RANGES:
-        lo, hi, text = _UNIT_RANGES[key]
-        closed_lo, closed_hi = text.startswith("["), text.endswith("]")
-        inside = (value >= lo if closed_lo else value > lo) and (
-            value <= hi if closed_hi else value < hi)
-        problem = None if inside else f"must be {text}"
+        text = _UNIT_RANGES[key]
+        above = value >= 0 if text[0] == "[" else value > 0
+        below = value <= 1 if text[-1] == "]" else value < 1
+        problem = None if above and below else f"must be in {text}"
     elif key == "kl_beta_high" and value < 1:
         problem = "must be >= 1"
     elif key == "obs" and value not in OBS_NAMES:
