@@ -152,3 +152,25 @@ def test_human_mode_without_a_display_is_a_clear_error(monkeypatch) -> None:
     monkeypatch.setattr("sys.platform", "linux")
     with pytest.raises(RuntimeError, match=r"needs a display.*rgb_array"):
         parallel_env(render_mode="human")
+
+
+def test_human_mode_draws_every_step_and_returns_none(monkeypatch) -> None:
+    import matplotlib.pyplot as plt
+
+    # the window code with the Agg backend: no window opens, the drawing runs the same
+    monkeypatch.setattr("trainer.env._check_display", lambda: None)
+    monkeypatch.setattr(plt, "pause", lambda interval: None)
+    was_interactive = plt.isinteractive()
+    try:
+        env = parallel_env(n_robots=3, step_limit=2, render_mode="human")
+        env.reset(seed=0)
+        fig = env._figure
+        assert fig is not None and plt.fignum_exists(fig.number)
+        title = fig.axes[0].get_title()
+        env.step({})
+        assert env.render() is None
+        assert fig.axes[0].get_title() != title  # redrawn at the step
+        env.close()
+        assert not plt.fignum_exists(fig.number)
+    finally:
+        plt.interactive(was_interactive)
