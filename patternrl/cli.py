@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import sys
+import tomllib
+from pathlib import Path
+
+DIST_NAME = "pattern-rl"
 
 # command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -24,6 +29,20 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def version() -> str:
+    """The installed package's version; from ``pyproject.toml`` when run from a source tree."""
+    try:
+        return importlib.metadata.version(DIST_NAME)
+    except importlib.metadata.PackageNotFoundError:
+        pass
+    pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+    try:
+        project = tomllib.loads(pyproject.read_text())["project"]
+    except (OSError, tomllib.TOMLDecodeError, KeyError):
+        return "unknown"
+    return str(project.get("version", "unknown")) if project.get("name") == DIST_NAME else "unknown"
+
+
 def _top_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="patternrl",
@@ -34,11 +53,15 @@ def _top_parser() -> argparse.ArgumentParser:
         + "\n\nRun 'patternrl COMMAND --help' for a command's options.",
     )
     p.add_argument("command", choices=list(COMMANDS), metavar="COMMAND", help="what to run")
+    p.add_argument("-V", "--version", action="version", version=f"patternrl {version()}")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("-V", "--version"):
+        print(f"patternrl {version()}")
+        return 0
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in COMMANDS:
         parser = _top_parser()
         if not argv:

@@ -22,17 +22,28 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 from runtime.brain import BrainError, BrainManifest, load_brain
+from runtime.errors import InputError
 from runtime.patterns import PatternError
 from runtime.world_config import DEFAULT_WORLD
-from trainer.checkpoints import InitError
-from trainer.config import ALGOS, PAPER_LRS, TrainConfig, obs_spec_for, reward_for
+from trainer.checkpoints import InitError, load_checkpoint
+from trainer.config import (
+    ALGOS,
+    PAPER_LRS,
+    TrainConfig,
+    apply_changes,
+    config_toml,
+    load_config_file,
+    obs_spec_for,
+    parse_set,
+    reward_for,
+)
+from trainer.curve import TensorBoardCurve
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
 from trainer.reward import PAPER_REWARD
-from trainer.train import RunPlan, artefact_paths, train
+from trainer.train import RunPlan, TrainResult, artefact_paths, train
 from trainer.training_world import check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0
@@ -45,11 +56,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--patterns",
         help="comma-separated sequence (e.g. circle,cross,line,heart), each continuing the last",
     )
-    p.add_argument("--robots", type=int, default=d.n_robots, help="team size (default 10)")
-    p.add_argument("--algo", choices=ALGOS, default=d.algo, help="default pattern-rl")
-    p.add_argument("--obs", choices=("paper", "general"), default=d.obs, help="default general")
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--out", required=True, type=Path, help="the brain to write (.onnx)")
+    # Options that set a TrainConfig field default to None: only one given on the command
+    # line overrides --config (precedence: defaults < --config < options < --set).
+    p.add_argument("--robots", type=int, help=f"team size (default {d.n_robots})")
+    p.add_argument("--algo", choices=ALGOS, help=f"default {d.algo}")
+    p.add_argument("--obs", choices=("paper", "general"), help=f"default {d.obs}")
+    p.add_argument("--seed", type=int, help=f"default {d.seed}")
+    p.add_argument("--out", type=Path, help="the brain to write (.onnx); required to train")
     stop = p.add_argument_group("stopping (per pattern; the first reached wins)")
     stop.add_argument("--episodes", type=int, help="training episodes")
     stop.add_argument(
@@ -64,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--init", help="fine-tune from a brain (.onnx) or a checkpoint (.pt)")
     p.add_argument("--resume", help="continue an interrupted run from its .ckpt.pt")
-    p.add_argument("--envs", type=int, default=d.n_envs, help=f"worlds side by side ({d.n_envs})")
+    p.add_argument("--envs", type=int, help=f"worlds side by side (default {d.n_envs})")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     tune = p.add_argument_group("tuning")
     tune.add_argument(
@@ -74,39 +87,100 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     tune.add_argument(
         "--reward",
         choices=("shaped", "paper"),
-        default="shaped",
-        help="shaped: the world's default with the per-robot progress term (training-only "
-        "credit signal); paper: eq. 6 alone",
+        help="shaped (default): the world's default with the per-robot progress term "
+        "(training-only credit signal); paper: eq. 6 alone",
     )
-    tune.add_argument("--k-neighbours", type=int, default=d.k_neighbours)
-    tune.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    tune.add_argument("--k-neighbours", type=int, help=f"default {d.k_neighbours}")
+    tune.add_argument(
+        "--eval-episodes", type=int, help=f"held-out episodes per evaluation ({d.eval_episodes})"
+    )
     tune.add_argument(
         "--final-eval-episodes",
         type=int,
         default=100,
         help="episodes of the exported brain's evaluation (ORCA on) for its manifest; 0 skips",
     )
-    tune.add_argument("--threads", type=int, default=d.threads, help="torch threads (default 1)")
+    tune.add_argument("--threads", type=int, help=f"torch threads (default {d.threads})")
     tune.add_argument("--no-progress", action="store_true", help="no bar, no log lines")
+    add_config_arguments(p)
+
+
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    """--config, --set, --print-config and --tensorboard."""
+    g = p.add_argument_group("configuration file and live curves")
+    g.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE.toml",
+        help="training configuration (every field of trainer/config.py TrainConfig, and a "
+        "[reward] table); options given on the command line override it",
+    )
+    g.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set one field, over --config and the options (repeatable; e.g. --set "
+        "lr_policy=1e-4 --set reward.beta=2)",
+    )
+    g.add_argument(
+        "--print-config",
+        "--dump-config",
+        action="store_true",
+        help="print the effective configuration as TOML (a file to start from) and exit",
+    )
+    g.add_argument(
+        "--tensorboard",
+        type=Path,
+        metavar="DIR",
+        help="write every column of the learning curve each iteration, and the "
+        "configuration, as TensorBoard events under DIR (tensorboard --logdir DIR)",
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    changes: dict[str, Any] = {
-        "algo": args.algo,
-        "obs": args.obs,
-        "n_robots": args.robots,
-        "seed": args.seed,
-        "n_envs": args.envs,
-        "k_neighbours": args.k_neighbours,
-        "eval_episodes": args.eval_episodes,
-        "threads": args.threads,
-        "lr_decay": args.lr_decay,
+    """The effective configuration: defaults < ``--config`` < options given < ``--set``.
+
+    Raises :class:`trainer.config.ConfigError` (one line naming the key) on bad input.
+    """
+    cfg = TrainConfig()
+    if getattr(args, "config", None) is not None:
+        cfg = apply_changes(cfg, load_config_file(args.config), str(args.config))
+    options = {  # flag -> (field, value given or None)
+        "--algo": ("algo", args.algo),
+        "--obs": ("obs", args.obs),
+        "--robots": ("n_robots", args.robots),
+        "--seed": ("seed", args.seed),
+        "--envs": ("n_envs", args.envs),
+        "--k-neighbours": ("k_neighbours", args.k_neighbours),
+        "--eval-episodes": ("eval_episodes", args.eval_episodes),
+        "--threads": ("threads", args.threads),
+        "--lr-decay": ("lr_decay", True if args.lr_decay else None),
     }
+    for flag, (name, value) in options.items():
+        if value is not None:
+            cfg = apply_changes(cfg, {name: value}, flag)
     if args.paper_lrs:
-        changes.update(PAPER_LRS)
-    if args.reward == "paper":
-        changes["reward"] = dataclasses.asdict(PAPER_REWARD)
-    return TrainConfig(**changes)
+        cfg = apply_changes(cfg, PAPER_LRS, "--paper-lrs")
+    if args.reward is not None:  # the whole table; shaped is the world's default
+        cfg = cfg.with_(reward=dataclasses.asdict(PAPER_REWARD) if args.reward == "paper" else {})
+    return apply_changes(cfg, parse_set(getattr(args, "set", None) or []), "--set")
+
+
+def _train(args: argparse.Namespace, cfg: TrainConfig, plan: RunPlan) -> TrainResult:
+    """``train``, with the curve written to TensorBoard as it grows when asked."""
+    if args.tensorboard is None:
+        return train(cfg, plan)
+    if plan.resume:  # the run goes on with its checkpoint's configuration
+        cfg = TrainConfig.from_dict(load_checkpoint(Path(plan.resume))["config"])
+    run_text = (
+        f"patterns: {' > '.join(plan.patterns)}\nout: {plan.out}\n"
+        f"episodes: {plan.episodes}\nuntil_success: {plan.until_success}\n"
+        f"time_budget_s: {plan.time_budget_s}\ninit: {plan.init}\nresume: {plan.resume}"
+    )
+    texts = {"config": config_toml(cfg), "run": run_text}
+    with TensorBoardCurve(args.tensorboard, texts) as board:
+        return train(cfg, plan, on_iteration=board)
 
 
 def _fail(msg: str) -> int:
@@ -122,11 +196,24 @@ def run(args: argparse.Namespace) -> int:
         cfg = config_from_args(args)
     except ValueError as e:
         return _fail(str(e))
+    if args.resume and (args.config or args.set):
+        print("patternrl train: note: a resumed run goes on with its checkpoint's "
+              "configuration; --config and --set do not change it", file=sys.stderr)
+    if args.print_config:
+        if args.resume:
+            try:
+                cfg = TrainConfig.from_dict(load_checkpoint(Path(args.resume))["config"])
+            except InitError as e:
+                return _fail(str(e))
+        print(config_toml(cfg), end="")
+        return 0
     try:
         for p in patterns:
             check_pattern(p, cfg.n_robots, DEFAULT_WORLD)
     except PatternError as e:
         return _fail(str(e))
+    if args.out is None:
+        return _fail("--out is required: the brain to write (.onnx)")
     if args.out.suffix != ".onnx":
         return _fail(f"--out must name an .onnx file, got {args.out}")
     for flag, path in (("--init", args.init), ("--resume", args.resume)):
@@ -149,8 +236,8 @@ def run(args: argparse.Namespace) -> int:
         progress=False if args.no_progress else None,
     )
     try:
-        result = train(cfg, plan)
-    except InitError as e:
+        result = _train(args, cfg, plan)
+    except (InitError, InputError) as e:
         return _fail(str(e))
     cfg = result.config  # a resumed run keeps its checkpoint's configuration
 

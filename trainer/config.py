@@ -27,9 +27,16 @@ gradient clipping and the desynchronised first episodes (see the fields).
 
 from __future__ import annotations
 
+import difflib
+import json
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, Literal, get_type_hints
 
+from runtime.errors import InputError
 from runtime.observation import ObservationSpec
 from trainer.reward import RewardConfig
 
@@ -165,3 +172,195 @@ def obs_spec_for(cfg: TrainConfig) -> ObservationSpec:
 def reward_for(cfg: TrainConfig) -> RewardConfig:
     """The world's reward constants with the run's overrides."""
     return RewardConfig(**cfg.reward)
+
+
+# ------------------------------------------------- the configuration as a file and --set
+#
+# ``patternrl train --config FILE.toml --set key=value``: every field above, by name,
+# in a TOML file (``patternrl train --print-config`` writes one to start from). The
+# reward's constants are a ``[reward]`` table (``--set reward.beta=2``).
+
+
+class ConfigError(InputError):
+    """A bad training configuration: unknown key, wrong type or bad value; names the key."""
+
+
+_POSITIVE_INTS = ("n_robots", "n_envs", "rollout_steps", "minibatch", "latent_dim", "ae_hidden",
+                  "eval_every", "eval_episodes", "threads", "k_neighbours")
+_NON_NEGATIVE_INTS = ("seed", "ae_steps", "policy_steps", "value_steps", "eval_seed_offset")
+_POSITIVE_FLOATS = ("lr_ae", "lr_policy", "lr_value", "init_std", "min_std", "max_grad_norm",
+                    "kl_target", "kl_coef_init", "kl_coef_min", "kl_coef_max", "clip_coef")
+_UNIT_RANGES = {"gamma": "(0, 1]", "gae_lambda": "[0, 1]", "kl_alpha": "(0, 1)",
+                "kl_beta_low": "(0, 1]"}
+"""Fields within 0..1; a bracket closes the end, a parenthesis opens it."""
+OBS_NAMES: tuple[str, ...] = ("paper", "general")
+
+
+def _field_types() -> dict[str, Any]:
+    """Field name -> its type (``str``, ``int``, ``float``, ``bool``, ``dict``)."""
+    hints = get_type_hints(TrainConfig)
+    return {f.name: getattr(hints[f.name], "__origin__", hints[f.name])
+            for f in fields(TrainConfig)}
+
+
+_TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false",
+               dict: "a table"}
+
+
+def _unknown(key: str, known: Sequence[str], source: str) -> ConfigError:
+    near = difflib.get_close_matches(key, known, n=1)
+    hint = f" (did you mean '{near[0]}'?)" if near else ""
+    return ConfigError(f"{source}: unknown key '{key}'{hint}")
+
+
+def _typed(key: str, value: Any, kind: Any, source: str) -> Any:
+    """``value`` as a ``kind`` (an int is a float too); a ConfigError when it is not one."""
+    ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value, ok = float(value), True
+    if not ok:
+        raise ConfigError(f"{source}: {key} must be {_TYPE_NAMES[kind]}, got {value!r}")
+    if kind is float and not math.isfinite(value):
+        raise ConfigError(f"{source}: {key} must be finite, got {value!r}")
+    return value
+
+
+def _check_range(key: str, value: Any, source: str) -> None:
+    problem = None
+    if key in _POSITIVE_INTS and value < 1:
+        problem = "must be >= 1"
+    elif key in _NON_NEGATIVE_INTS and value < 0:
+        problem = "must be >= 0"
+    elif key in _POSITIVE_FLOATS and value <= 0:
+        problem = "must be > 0"
+    elif key in _UNIT_RANGES:
+        text = _UNIT_RANGES[key]
+        above = value >= 0 if text[0] == "[" else value > 0
+        below = value <= 1 if text[-1] == "]" else value < 1
+        problem = None if above and below else f"must be in {text}"
+    elif key == "kl_beta_high" and value < 1:
+        problem = "must be >= 1"
+    elif key == "obs" and value not in OBS_NAMES:
+        problem = f"unknown observation '{value}' (known: {', '.join(OBS_NAMES)})"
+    if problem is None:
+        try:  # the dataclass's own checks, one key at a time so the error names it
+            TrainConfig().with_(**{key: value})
+        except ValueError as e:
+            problem = str(e)
+    if problem is not None:
+        sep = " " if problem.startswith("must") else ": "
+        raise ConfigError(f"{source}: {key}{sep}{problem}")
+
+
+def _reward_table(value: Any, source: str) -> dict[str, float]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{source}: reward must be a table of reward constants, got {value!r}")
+    known = [f.name for f in fields(RewardConfig)]
+    out = {}
+    for k, v in value.items():
+        if k not in known:
+            raise _unknown(f"reward.{k}", [f"reward.{n}" for n in known], source)
+        out[k] = _typed(f"reward.{k}", v, float, source)
+    return out
+
+
+def check_changes(changes: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """Validate ``changes`` (field -> value) from ``source`` (a file name, ``--set``).
+
+    Returns them with ints widened to floats where a field is a float. Raises
+    :class:`ConfigError` naming the first unknown key, wrong type or bad value.
+    """
+    types = _field_types()
+    out: dict[str, Any] = {}
+    for key, value in changes.items():
+        if key not in types:
+            raise _unknown(key, list(types), source)
+        if key == "reward":
+            out[key] = _reward_table(value, source)
+            continue
+        out[key] = _typed(key, value, types[key], source)
+        _check_range(key, out[key], source)
+    return out
+
+
+def apply_changes(cfg: TrainConfig, changes: Mapping[str, Any], source: str) -> TrainConfig:
+    """``cfg`` with validated ``changes``; a ``reward`` table merges key by key."""
+    checked = check_changes(changes, source)
+    if "reward" in checked:
+        checked["reward"] = {**cfg.reward, **checked["reward"]}
+    try:
+        return cfg.with_(**checked)
+    except ValueError as e:
+        raise ConfigError(f"{source}: {e}") from None
+
+
+def load_config_file(path: str | Path) -> dict[str, Any]:
+    """The fields a TOML file sets (not yet validated: see :func:`check_changes`)."""
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except OSError as e:
+        raise ConfigError(f"cannot read config {path}: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+
+
+_TRUE, _FALSE = ("true", "yes", "on", "1"), ("false", "no", "off", "0")
+
+
+def parse_set(items: Sequence[str]) -> dict[str, Any]:
+    """``["key=value", "reward.beta=2", ...]`` -> typed changes (a later key wins)."""
+    types = _field_types()
+    reward_keys = [f.name for f in fields(RewardConfig)]
+    out: dict[str, Any] = {}
+    for item in items:
+        key, eq, text = item.partition("=")
+        key, text = key.strip(), text.strip()
+        if not eq or not key:
+            raise ConfigError(f"--set expects KEY=VALUE, got '{item}'")
+        if key.startswith("reward."):
+            name = key.removeprefix("reward.")
+            if name not in reward_keys:
+                raise _unknown(key, [f"reward.{n}" for n in reward_keys], "--set")
+            out.setdefault("reward", {})[name] = _parse_text(key, text, float)
+            continue
+        if key not in types:
+            raise _unknown(key, list(types), "--set")
+        if types[key] is dict:
+            raise ConfigError(f"--set: {key} is a table: set its keys as {key}.NAME=VALUE")
+        out[key] = _parse_text(key, text, types[key])
+    return out
+
+
+def _parse_text(key: str, text: str, kind: Any) -> Any:
+    try:
+        if kind is bool:
+            if text.lower() not in _TRUE + _FALSE:
+                raise ValueError(text)
+            return text.lower() in _TRUE
+        return kind(text)
+    except ValueError:
+        raise ConfigError(f"--set: {key} must be {_TYPE_NAMES[kind]}, got '{text}'") from None
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a TOML basic string
+    return repr(v)
+
+
+def config_toml(cfg: TrainConfig) -> str:
+    """``cfg`` as a TOML file that ``--config`` reads back to the same configuration."""
+    lines = ["# patternrl train --config FILE.toml (every key optional; see trainer/config.py)"]
+    d = cfg.to_dict()
+    lines += [f"{k} = {_toml_value(v)}" for k, v in d.items() if k != "reward"]
+    lines += ["", "# the world's reward constants (trainer/reward.py); '#' lines are the defaults",
+              "[reward]"]
+    for k, default in asdict(RewardConfig()).items():
+        if k in cfg.reward:
+            lines.append(f"{k} = {_toml_value(float(cfg.reward[k]))}")
+        else:
+            lines.append(f"# {k} = {_toml_value(default)}")
+    return "\n".join(lines) + "\n"

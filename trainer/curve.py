@@ -6,7 +6,8 @@ success of recent training episodes (noisy: sampled actions), the held-out
 evaluation when one ran (``nan`` otherwise; blank in the CSV), and the update's
 statistics. ``<stem>.curve.csv`` holds every row; ``<stem>.curve.png`` draws the
 reward and both success rates against training episodes, a dotted line at each
-new pattern stage.
+new pattern stage. :class:`TensorBoardCurve` writes each row, as it is made, as
+TensorBoard scalars (``patternrl train --tensorboard DIR``).
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ import csv
 import math
 import sys
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import numpy as np
 
+from runtime.errors import InputError
 from trainer.update import UpdateStats
 
 CURVE_FIELDS = (
@@ -44,6 +47,27 @@ CURVE_FIELDS = (
 )
 WALL_FIELDS = ("wall_s",)
 """The columns that differ between two runs of the same seed."""
+
+SCALAR_TAGS: dict[str, str] = {
+    "stage": "progress/stage",
+    "episodes": "progress/episodes",
+    "agent_steps": "progress/agent_steps",
+    "wall_s": "progress/wall_s",
+    "lr_scale": "progress/lr_scale",
+    "mean_reward": "rollout/mean_reward",
+    "train_success": "rollout/train_success",
+    "eval_success": "eval/eval_success",
+    "eval_steps": "eval/eval_steps",
+    "kl": "update/kl",
+    "kl_encoder": "update/kl_encoder",
+    "kl_coef": "update/kl_coef",
+    "ae_loss": "update/ae_loss",
+    "policy_loss": "update/policy_loss",
+    "value_loss": "update/value_loss",
+    "std": "update/std",
+    "explained_var": "update/explained_var",
+}
+"""TensorBoard tag of every numeric column; ``iteration`` is the step, ``pattern`` a text."""
 
 
 def curve_row(
@@ -167,3 +191,60 @@ class ProgressBar:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+class TensorBoardCurve:
+    """The curve as TensorBoard scalars, one step per iteration, flushed as each row comes.
+
+    Call it with each row (it is a ``train(on_iteration=...)`` hook). Every column of
+    :data:`CURVE_FIELDS` is written: the numbers under :data:`SCALAR_TAGS` (a ``nan``,
+    e.g. an iteration without held-out evaluation, is left out, as the CSV leaves it
+    blank), the pattern as the text ``pattern`` whenever it changes. ``texts`` (e.g. the
+    configuration as TOML) are written once at the start. Use it as a context manager:
+    the file is closed at the end and on Ctrl-C.
+    """
+
+    def __init__(self, logdir: Path, texts: dict[str, str] | None = None) -> None:
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError as e:
+            raise InputError(
+                f"--tensorboard needs the tensorboard package ({e}); "
+                "pip install 'pattern-rl[train]'"
+            ) from None
+        if logdir.exists() and not logdir.is_dir():
+            raise InputError(f"--tensorboard {logdir}: not a directory")
+        try:
+            self.writer = SummaryWriter(log_dir=str(logdir))
+        except OSError as e:
+            raise InputError(f"--tensorboard {logdir}: {e.strerror or e}") from None
+        self._pattern: str | None = None
+        for tag, text in (texts or {}).items():
+            # markdown: indented lines show as they are
+            self.writer.add_text(tag, "\n".join("    " + ln for ln in text.splitlines()), 0)
+        self.writer.flush()
+
+    def __call__(self, row: dict[str, Any]) -> None:
+        step = int(row["iteration"])
+        for col, tag in SCALAR_TAGS.items():
+            v = row.get(col)
+            if v is not None and math.isfinite(float(v)):
+                self.writer.add_scalar(tag, float(v), step)
+        if row.get("pattern") != self._pattern:
+            self._pattern = str(row.get("pattern"))
+            self.writer.add_text("pattern", self._pattern, step)
+        self.writer.flush()  # seen live by ``tensorboard --logdir``
+
+    def close(self) -> None:
+        self.writer.close()
+
+    def __enter__(self) -> TensorBoardCurve:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
