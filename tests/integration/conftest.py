@@ -156,7 +156,7 @@ class StubWorld:
     def wait_alive(self, ids: set[int], timeout: float = 20.0) -> None:
         self.wait(lambda: ids <= self.alive, timeout, f"robots {sorted(ids)} alive")
 
-    def wait_cmds(self, step: int, ids: list[int], timeout: float = 5.0) -> dict[int, Command]:
+    def wait_cmds(self, step: int, ids: list[int], timeout: float = 30.0) -> dict[int, Command]:
         self.wait(lambda: set(ids) <= set(self.cmds[step]), timeout, f"commands of step {step}")
         with self.cond:
             return dict(self.cmds[step])
@@ -174,7 +174,7 @@ class StubWorld:
         return st
 
     def lockstep(
-        self, pos: np.ndarray, step: int, ids: list[int] | None = None, timeout: float = 5.0
+        self, pos: np.ndarray, step: int, ids: list[int] | None = None, timeout: float = 30.0
     ) -> tuple[np.ndarray, dict[int, Command]]:
         """Publish the poses of ``step``, wait for every command of it, move the robots."""
         ids = list(range(len(pos))) if ids is None else ids

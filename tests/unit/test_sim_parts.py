@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -107,6 +108,9 @@ def test_world_link_exchanges_a_step_with_a_robot() -> None:
             assert missed == [] and v.tolist() == [[0.25, -0.5]]
             assert link.brains() == {1: "rule:assign"} and link.decision_us == [12.0]
             robot.put(keys.cmd_key(swarm, 1), b"\x00garbage")  # dropped and counted
+            deadline = time.monotonic() + 30.0  # delivery is asynchronous: wait, bounded
+            while link.malformed < 1 and time.monotonic() < deadline:
+                time.sleep(0.01)
             link.put_pattern(b"pattern")
             token.undeclare()
             sub.undeclare()
