@@ -38,9 +38,9 @@ almost every step.
 
 from __future__ import annotations
 
-import numpy as np
-
 from typing import NamedTuple
+
+import numpy as np
 
 from runtime.types import Array, BoolArray, IntArray
 

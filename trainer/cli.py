@@ -25,13 +25,14 @@ from pathlib import Path
 from typing import Any
 
 from runtime.brain import BrainError, BrainManifest, load_brain
+from runtime.errors import InputError
 from runtime.patterns import PatternError
 from runtime.world_config import DEFAULT_WORLD
-from trainer.checkpoints import InitError
 from trainer.config import ALGOS, PAPER_LRS, TrainConfig, obs_spec_for, reward_for
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
 from trainer.reward import PAPER_REWARD
+from trainer.rollout import RolloutMode, env_shares
 from trainer.train import RunPlan, artefact_paths, train
 from trainer.training_world import check_pattern
 
@@ -88,6 +89,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     tune.add_argument("--threads", type=int, default=d.threads, help="torch threads (default 1)")
     tune.add_argument("--no-progress", action="store_true", help="no bar, no log lines")
+    dist = p.add_argument_group("rollouts on Ray (the 'distributed' extra)")
+    dist.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help="play the rollouts on Ray actors, the update here; with ADDRESS (e.g. "
+        "10.0.0.5:6379, from 'ray start --head') join that cluster, else start a local one",
+    )
+    dist.add_argument(
+        "--ray-workers", type=int, default=1, help="Ray rollout actors, each a share of --envs (1)"
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -138,6 +152,13 @@ def run(args: argparse.Namespace) -> int:
     budget = args.time_budget_s
     if budget is None and args.episodes is None:
         budget = DEFAULT_TIME_BUDGET_S
+    try:
+        rollouts = RolloutMode(ray=args.ray is not None, address=args.ray or None,
+                               workers=args.ray_workers)
+        if rollouts.ray:
+            env_shares(cfg.n_envs, rollouts.workers)
+    except ValueError as e:
+        return _fail(str(e))
     plan = RunPlan(
         patterns=patterns,
         out=args.out,
@@ -147,10 +168,11 @@ def run(args: argparse.Namespace) -> int:
         init=args.init,
         resume=args.resume,
         progress=False if args.no_progress else None,
+        rollouts=rollouts,
     )
     try:
         result = train(cfg, plan)
-    except InitError as e:
+    except InputError as e:  # a bad --init/--resume file, Ray missing or unreachable
         return _fail(str(e))
     cfg = result.config  # a resumed run keeps its checkpoint's configuration
 
@@ -185,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
             "init_brain_id": init_id,
             "reward": dataclasses.asdict(reward_for(cfg)),
             "config": cfg.to_dict(),
+            "rollouts": result.rollouts,
         },
     )
     write_brain(result.agent, args.out, manifest)

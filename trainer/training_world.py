@@ -47,7 +47,10 @@ Reward constants: :mod:`trainer.reward` (``RewardConfig``, ``DEFAULT_REWARD``,
 Starts and patterns
     Each env owns a ``numpy.random.Generator`` spawned from ``SeedSequence(seed)``
     (child e for env e), used only by that env's resets: env e's sequence of
-    episodes depends on nothing else (not on E, nor on the other envs). A reset
+    episodes depends on nothing else (not on E, nor on the other envs). With
+    ``first_env = a`` the envs are children a, a+1, ...: a world holding envs
+    [a, b) of a larger batch (one Ray worker's share) draws what that batch's
+    envs would. A reset
     draws the pattern (one of the set, uniformly) and then N starts uniform in
     the arena with pairwise separation >= ``start_separation`` (rejection
     sampling: every robot too close to a lower-numbered one is redrawn, all at
@@ -158,6 +161,7 @@ class BatchWorld:
         compute_bounds: bool = False,
         step_limit: int | None = None,
         build_obs: bool = True,
+        first_env: int = 0,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -175,7 +179,10 @@ class BatchWorld:
         density = n_robots * math.pi * (world.start_separation_m / 2.0) ** 2 / world.arena_m**2
         if density > 0.3:
             raise ValueError(f"{n_robots} robots do not fit apart in a {world.arena_m} m arena")
+        if first_env < 0:
+            raise ValueError(f"first_env must be >= 0, got {first_env}")
         self.n_envs = n_envs
+        self.first_env = first_env
         self.n_robots = n_robots
         self.obs_spec = obs_spec
         self.world = world
@@ -260,7 +267,9 @@ class BatchWorld:
     # ------------------------------------------------------------ pattern set
 
     def _spawn_rngs(self, seed: int) -> list[np.random.Generator]:
-        children = np.random.SeedSequence(seed).spawn(self.n_envs)
+        # env e is child first_env + e: a share of a larger batch draws what that batch would
+        children = np.random.SeedSequence(seed).spawn(self.first_env + self.n_envs)
+        children = children[self.first_env :]
         return [np.random.default_rng(c) for c in children]
 
     def _set_pattern_names(self, names: tuple[str, ...]) -> None:
@@ -423,7 +432,8 @@ class BatchWorld:
             X = self._X if ids is None else self._X[:, :, ids]
             G = self._G if ids is None else self._G[:, :, ids]
             X_prev = self.frames[sel, 1].transpose(2, 1, 0)
-            return general_observation_env_last(X, X_prev, G, self.obs_spec.k_neighbours, self.world)
+            k = self.obs_spec.k_neighbours
+            return general_observation_env_last(X, X_prev, G, k, self.world)
         obs = observe(self.obs_spec, self.frames[sel], None, None, self.world)
         return obs.astype(np.float32)
 
