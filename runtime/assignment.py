@@ -28,12 +28,14 @@ Rounding: distances are sums of at most n edge weights of magnitude
 ``max(cost)``, so their rounding error is about ``n * max(cost) * 1e-16``; for
 the world's 10 m arena that is below 1e-12 m^2, far below the bound.
 
-We measured the alternatives first (E = 64, n = 10, this machine): scipy's
-Hungarian per env costs ~5-6 us an env (~350 us a step); a vectorised auction
-or Jonker-Volgenant needs n to n^2 dependent rounds of numpy calls (each
-~10 us) and is slower than the loop it replaces, and an auction is only
-eps-optimal. The certificate settles in 2-3 rounds (~40 us for all envs) on
-almost every step.
+Cost (E = 64, n = 10, this 2-core machine): scipy's Hungarian costs ~3-5 us
+an env (~200-350 us a step, with the Python loop); one Bellman-Ford round is
+~10-20 us for all envs, and with the last step's potentials as a start (kept
+by the training world) most envs settle within ``CERTIFY_ROUNDS`` rounds, so
+scipy runs for a few envs a step. A vectorised auction or Jonker-Volgenant was
+not built: either needs n to n^2 dependent rounds of such numpy calls (an
+estimate from the round cost above, not a measurement), and an auction is
+only eps-optimal.
 """
 
 from __future__ import annotations
