@@ -10,7 +10,7 @@ Rows, all measured in one run, side by side:
   where it fails; the observation built env-last). Same values, bit for bit.
 * ``train``: agent-steps/s of whole iterations (rollout + update + held-out
   evaluation) for ``--train-s`` seconds: in-process, then 1 and 2 Ray workers
-  on a local instance (its start is not counted).
+  on a local instance (Ray's own start is not counted; the actors' is).
 * ``to-95``: seconds until the held-out success on a 10-robot circle
   (general observation) reaches 95 %, per mode, bounded by ``--ttf-budget-s``
   (a run that does not get there reports its best success instead).
@@ -112,10 +112,9 @@ def train_rate(mode: RolloutMode, seconds: float, cfg: TrainConfig) -> dict[str,
     """Agent-steps/s over whole iterations for ``seconds``, in ``mode`` (Ray start excluded)."""
     res = train(cfg, RunPlan(patterns=["circle"], out=Path("unused.onnx"), time_budget_s=seconds,
                              write_files=False, progress=False, rollouts=mode))
-    first, last = res.curve[0], res.curve[-1]
-    steps = last["agent_steps"] - first["agent_steps"]
-    wall = last["wall_s"] - first["wall_s"]
-    return {"iterations": len(res.curve), "agent_steps_per_s": round(steps / max(wall, 1e-9))}
+    last = res.curve[-1]  # every iteration counted, the first (and its worker start) included
+    rate = last["agent_steps"] / max(last["wall_s"], 1e-9)
+    return {"iterations": len(res.curve), "agent_steps_per_s": round(rate)}
 
 
 def time_to_95(mode: RolloutMode, budget_s: float, cfg: TrainConfig) -> dict[str, Any]:
