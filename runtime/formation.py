@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from runtime.assignment import certify_assignment, is_permutation, taken_index
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -144,19 +145,77 @@ def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArr
 
 
 def assign_slots_batch(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
-    """:func:`assign_slots` over a batch: P (E, n, 2), C (n, 2) or (E, n, 2) -> (E, n)."""
+    """:func:`assign_slots` over a batch: P (E, n, 2), C (n, 2) or (E, n, 2) -> (E, n).
+
+    With ``previous`` (E, n) the envs whose previous assignment is proven still
+    optimal keep it without a solve (:func:`assign_slots_env_last`); the result
+    is the same as solving every env and applying the hysteresis rule.
+    """
     cost = _sq_cost(P, np.broadcast_to(C, P.shape))
-    E, n = P.shape[0], P.shape[1]
-    slots = np.empty((E, n), dtype=np.int64)
-    for e in range(E):  # one C call per env; scipy has no batched solver
-        slots[e] = linear_sum_assignment(cost[e])[1]
-    if previous is not None:
-        new = np.take_along_axis(cost, slots[..., None], -1)[..., 0].sum(-1)
-        old = np.take_along_axis(cost, previous[..., None], -1)[..., 0].sum(-1)
-        keep = keeps_previous(new, old)
-        slots[keep] = previous[keep]
+    if previous is None:
+        return _solve_each(cost, np.arange(cost.shape[0]))
+    prev = np.asarray(previous, dtype=np.int64)
+    out: IntArray = assign_slots_env_last(
+        np.ascontiguousarray(cost.transpose(1, 2, 0)), np.ascontiguousarray(prev.T)
+    ).T
+    return np.ascontiguousarray(out)
+
+
+def _solve_each(cost: Array, envs: IntArray) -> IntArray:
+    """scipy's assignment of each env of ``envs``: cost (E, n, n) -> (len(envs), n)."""
+    slots = np.empty((len(envs), cost.shape[-1]), dtype=np.int64)
+    for r, e in enumerate(envs):  # one C call per env; scipy has no batched solver
+        slots[r] = linear_sum_assignment(cost[e])[1]
     return slots
 
+
+def assign_slots_env_last(
+    cost: Array, previous: IntArray, potentials: Array | None = None
+) -> IntArray:
+    """The shared assignment with hysteresis, env-last: ``cost`` (n, n, E), ``previous`` (n, E).
+
+    ``cost[i, j, e]``: squared distance (m^2) of centred robot i to centred
+    slot j (:func:`centred_cost`'s values). Returns slots (n, E), exactly what
+    solving every env with scipy and applying :func:`keeps_previous` gives:
+    an env where no assignment is proven to beat ``previous`` by half the
+    hysteresis margin (:func:`runtime.assignment.certify_assignment`) would
+    keep it under the rule whatever scipy returned, so it keeps it unsolved;
+    the others are solved and the rule applied. A ``previous`` that is not a
+    permutation is never certified: it goes through the solver and the rule.
+
+    ``potentials`` (n, E), optional, is the certificate's state carried from
+    call to call (zeros at first); it is updated in place, and makes the
+    proof one Bellman-Ford round on most steps.
+    """
+    n, E = previous.shape
+    cost = np.ascontiguousarray(cost)
+    valid = is_permutation(previous)
+    whole = bool(valid.all())
+    ok = slice(None) if whole else np.flatnonzero(valid)
+    c, p = (cost, previous) if whole else (cost[:, :, ok], previous[:, ok])
+    k = c.shape[2]
+    old = c.reshape(n, n * k)[np.arange(n)[:, None], taken_index(p)].sum(axis=0)  # (k,) m^2
+    # half the hysteresis margin, shared over at most n exchange cycles: a proof
+    # that nothing beats ``previous`` by that much is a proof the rule keeps it
+    tol = (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2) * (0.5 / n)
+    start = None if potentials is None else potentials[:, ok]
+    cert = certify_assignment(c, p, tol, start)
+    kept = np.zeros(E, dtype=bool)
+    kept[ok] = cert.settled
+    if potentials is not None:
+        potentials[:, ok] = cert.potentials
+    slots = previous.copy()
+    todo = np.flatnonzero(~kept)
+    if len(todo):
+        sub = cost[:, :, todo].transpose(2, 0, 1)  # (m, n, n)
+        fresh = _solve_each(sub, np.arange(len(todo)))  # (m, n)
+        new = np.take_along_axis(sub, fresh[..., None], -1)[..., 0].sum(-1)
+        old_sub = np.take_along_axis(sub, previous[:, todo].T[..., None], -1)[..., 0].sum(-1)
+        keep = keeps_previous(new, old_sub)
+        slots[:, todo] = np.where(keep[None, :], previous[:, todo], fresh.T)
+        if potentials is not None:  # a new assignment is a new exchange graph
+            potentials[:, todo[~keep]] = 0.0
+    return slots
 
 def slot_positions(P: Array, C: Array, slots: IntArray) -> Array:
     """World position of each robot's slot: the centred pattern placed on the team's centroid."""

@@ -43,6 +43,7 @@ from trainer.curve import TensorBoardCurve
 from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
 from trainer.export import write_brain
 from trainer.reward import PAPER_REWARD
+from trainer.rollout import RolloutMode, env_shares
 from trainer.train import RunPlan, TrainResult, artefact_paths, train
 from trainer.training_world import check_pattern
 
@@ -102,6 +103,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     tune.add_argument("--threads", type=int, help=f"torch threads (default {d.threads})")
     tune.add_argument("--no-progress", action="store_true", help="no bar, no log lines")
+    dist = p.add_argument_group("rollouts on Ray (the 'distributed' extra)")
+    dist.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help="play the rollouts on Ray actors, the update here; with ADDRESS (e.g. "
+        "10.0.0.5:6379, from 'ray start --head') join that cluster, else start a local one",
+    )
+    dist.add_argument(
+        "--ray-workers", type=int, default=1, help="Ray rollout actors, each a share of --envs (1)"
+    )
     add_config_arguments(p)
 
 
@@ -225,6 +239,13 @@ def run(args: argparse.Namespace) -> int:
     budget = args.time_budget_s
     if budget is None and args.episodes is None:
         budget = DEFAULT_TIME_BUDGET_S
+    try:
+        rollouts = RolloutMode(ray=args.ray is not None, address=args.ray or None,
+                               workers=args.ray_workers)
+        if rollouts.ray:
+            env_shares(cfg.n_envs, rollouts.workers)
+    except ValueError as e:
+        return _fail(str(e))
     plan = RunPlan(
         patterns=patterns,
         out=args.out,
@@ -234,10 +255,11 @@ def run(args: argparse.Namespace) -> int:
         init=args.init,
         resume=args.resume,
         progress=False if args.no_progress else None,
+        rollouts=rollouts,
     )
     try:
         result = _train(args, cfg, plan)
-    except (InitError, InputError) as e:
+    except InputError as e:  # a bad --init/--resume file, Ray missing or unreachable
         return _fail(str(e))
     cfg = result.config  # a resumed run keeps its checkpoint's configuration
 
@@ -272,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
             "init_brain_id": init_id,
             "reward": dataclasses.asdict(reward_for(cfg)),
             "config": cfg.to_dict(),
+            "rollouts": result.rollouts,
         },
     )
     write_brain(result.agent, args.out, manifest)

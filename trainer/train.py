@@ -65,11 +65,13 @@ from trainer.checkpoints import (
 from trainer.config import TrainConfig, obs_spec_for, reward_for
 from trainer.curve import ProgressBar, curve_row, plot_curve, write_curve
 from trainer.networks import Agent, gaussian_logprob
+from trainer.rollout import IN_PROCESS, RESUME_SEED_STRIDE, RolloutMode, RolloutSource, stage_world
 from trainer.storage import Rollout, RolloutBatch
 from trainer.training_world import BatchWorld, check_pattern
 from trainer.update import UpdateStats, update
 
-RESUME_SEED_STRIDE = 7919
+__all__ = ["RESUME_SEED_STRIDE", "RolloutResult", "RunPlan", "TrainResult", "collect_rollout",
+           "train"]
 RECENT_EPISODES_PER_ENV = 4
 """The curve's training reward and success average the last this-many x n_envs episodes."""
 
@@ -94,6 +96,8 @@ class RunPlan:
     """tqdm bar on stderr; None: only when stderr is a terminal."""
     write_files: bool = True
     world: WorldConfig = DEFAULT_WORLD
+    rollouts: RolloutMode = IN_PROCESS
+    """Where the rollouts play: in this process, or on Ray actors (:mod:`trainer.rollout`)."""
 
     def __post_init__(self) -> None:
         if self.episodes is None and self.until_success is None and self.time_budget_s is None:
@@ -118,6 +122,8 @@ class TrainResult:
     wall_s: float
     stopped: str
     config: TrainConfig
+    rollouts: dict[str, object] | None = None
+    """How the rollouts were played (``RolloutMode.describe()``), for the manifest."""
 
 
 def set_determinism(cfg: TrainConfig) -> None:
@@ -240,6 +246,33 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     return RolloutResult(batch, obs, returns, success)
 
 
+class InProcessRollouts:
+    """The stage's worlds in this process: :func:`collect_rollout` on one ``BatchWorld``."""
+
+    def __init__(self, cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int
+                 ) -> None:
+        self.cfg, self.v_max_mps = cfg, world.v_max_mps
+        self.bw, self.obs = stage_world(cfg, world, pattern, it, stage)
+
+    def collect(self, agent: Agent, gen: torch.Generator) -> RolloutResult:
+        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps)
+        self.obs = ro.obs
+        return ro
+
+    def close(self) -> None:
+        pass
+
+
+def rollout_source(cfg: TrainConfig, plan: RunPlan, pattern: str, it: int, stage: int
+                   ) -> RolloutSource:
+    """The plan's rollout source for one stage (Ray is imported only when asked for)."""
+    if not plan.rollouts.ray:
+        return InProcessRollouts(cfg, plan.world, pattern, it, stage)
+    from trainer.ray_rollouts import RayRollouts
+
+    return RayRollouts(cfg, plan.world, pattern, it, stage, plan.rollouts)
+
+
 # ------------------------------------------------------------------- one run
 
 
@@ -296,11 +329,18 @@ def train(
     run = _Run(cfg, plan, artefact_paths(plan.out), time.perf_counter() - st.wall0_s,
                ProgressBar(plan.progress, total_eps, plan.log_every), on_iteration)
     stopped = "budget"
+    cluster = None
+    if plan.rollouts.ray:
+        from trainer.ray_rollouts import RayCluster
+
+        cluster = RayCluster(plan.rollouts)
     try:
         for stage in range(st.stage0, len(plan.patterns)):
             stopped = _train_stage(run, st, stage)
     finally:
         run.progress.close()
+        if cluster is not None:
+            cluster.close()
     return _finish(run, st, stopped)
 
 
@@ -308,12 +348,20 @@ def _train_stage(run: _Run, st: TrainState, stage: int) -> str:
     """Train one pattern until one of the plan's stops; which one."""
     cfg, plan = run.cfg, run.plan
     pattern = plan.patterns[stage]
-    bw, obs = _stage_world(cfg, plan.world, pattern, st.iteration, stage)
+    source = rollout_source(cfg, plan, pattern, st.iteration, stage)
+    try:
+        return _stage_loop(run, st, stage, pattern, source)
+    finally:
+        source.close()
+
+
+def _stage_loop(run: _Run, st: TrainState, stage: int, pattern: str, source: RolloutSource
+                ) -> str:
+    cfg, plan = run.cfg, run.plan
     eps0 = st.episodes if stage > st.stage0 or not plan.resume else _stage_start(st.curve)
     sg = _Stage(stage, pattern, eps0, time.perf_counter(), [], [])
     while True:
-        ro = collect_rollout(st.agent, bw, obs, cfg, st.gen, plan.world.v_max_mps)
-        obs = ro.obs
+        ro = source.collect(st.agent, st.gen)
         st.agent_steps += cfg.n_envs * cfg.n_robots * cfg.rollout_steps
         st.episodes += len(ro.returns)
         sg.returns += ro.returns
@@ -326,21 +374,6 @@ def _train_stage(run: _Run, st: TrainState, stage: int) -> str:
         stop = _stop_reason(plan, ev, st.episodes - sg.eps0, time.perf_counter() - sg.t0)
         if stop is not None:
             return stop
-
-
-def _stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int
-                 ) -> tuple[BatchWorld, F32Array]:
-    """The stage's batch of worlds and their first observation."""
-    world_seed = cfg.seed + RESUME_SEED_STRIDE * it  # it = 0 unless resumed
-    bw = BatchWorld(cfg.n_envs, cfg.n_robots, pattern, obs_spec_for(cfg), world=world,
-                    reward=reward_for(cfg), seed=world_seed)
-    obs = bw.observe()
-    if cfg.desync:
-        # every world starts at once; cut each first episode at a random step (a
-        # time-limit cut, bootstrapped) so that later memories mix all episode phases
-        rng = np.random.default_rng([cfg.seed, it, stage])
-        bw.steps[:] = rng.integers(0, bw.step_limit, size=cfg.n_envs)
-    return bw, obs
 
 
 def _learn(st: TrainState, batch: RolloutBatch, cfg: TrainConfig, lr_scale: float
@@ -447,6 +480,7 @@ def _finish(run: _Run, st: TrainState, stopped: str) -> TrainResult:
         wall_s=wall,
         stopped=stopped,
         config=cfg,
+        rollouts=plan.rollouts.describe(),
     )
 
 

@@ -47,7 +47,10 @@ Reward constants: :mod:`trainer.reward` (``RewardConfig``, ``DEFAULT_REWARD``,
 Starts and patterns
     Each env owns a ``numpy.random.Generator`` spawned from ``SeedSequence(seed)``
     (child e for env e), used only by that env's resets: env e's sequence of
-    episodes depends on nothing else (not on E, nor on the other envs). A reset
+    episodes depends on nothing else (not on E, nor on the other envs). With
+    ``first_env = a`` the envs are children a, a+1, ...: a world holding envs
+    [a, b) of a larger batch (one Ray worker's share) draws what that batch's
+    envs would. A reset
     draws the pattern (one of the set, uniformly) and then N starts uniform in
     the arena with pairwise separation >= ``start_separation`` (rejection
     sampling: every robot too close to a lower-numbered one is redrawn, all at
@@ -65,8 +68,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.formation import assign_slots_batch, lower_bounds
-from runtime.observation import ObservationSpec, observe
+from runtime.formation import assign_slots_batch, assign_slots_env_last, lower_bounds
+from runtime.observation import ObservationSpec, general_observation_env_last, observe
 from runtime.patterns import make_pattern, random_pattern
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -157,6 +160,7 @@ class BatchWorld:
         compute_bounds: bool = False,
         step_limit: int | None = None,
         build_obs: bool = True,
+        first_env: int = 0,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -174,7 +178,10 @@ class BatchWorld:
         density = n_robots * math.pi * (world.start_separation_m / 2.0) ** 2 / world.arena_m**2
         if density > 0.3:
             raise ValueError(f"{n_robots} robots do not fit apart in a {world.arena_m} m arena")
+        if first_env < 0:
+            raise ValueError(f"first_env must be >= 0, got {first_env}")
         self.n_envs = n_envs
+        self.first_env = first_env
         self.n_robots = n_robots
         self.obs_spec = obs_spec
         self.world = world
@@ -191,7 +198,6 @@ class BatchWorld:
         self._reach = world.max_step_m
         self._formed_tol2 = world.formed_tol_m**2
         self._lower = np.tril(np.ones((N, N), dtype=bool), -1)  # [i, j]: j < i
-        self._env_col = np.arange(E)[:, None]
         self._no_obs: F32Array = np.zeros((E, N, 0), dtype=np.float32)
         self._no_obs.flags.writeable = False
         self._rngs = self._spawn_rngs(seed)
@@ -214,6 +220,10 @@ class BatchWorld:
         # hot-path state, robot-major: (2, N, E) and (N, E)
         self._X: Array = np.zeros((2, N, E))  # positions now
         self._G: Array = np.zeros((2, N, E))  # each robot's slot in world coordinates
+        self._C: Array = np.zeros((2, N, E))  # each env's pattern (centred), robot-major
+        self._Cc: Array = np.zeros((2, N, E))  # the same centred again, as the assignment does
+        self._slots: IntArray = np.zeros((N, E), dtype=np.int64)  # ``slots``, robot-major
+        self._potentials: Array = np.zeros((N, E))  # the assignment proof's warm start
         self._dist: Array = np.zeros((N, E))  # |position - slot|
         self._travel: Array = np.zeros((N, E))
         # shared "no contact this step" results, read-only so they can be handed out
@@ -256,7 +266,9 @@ class BatchWorld:
     # ------------------------------------------------------------ pattern set
 
     def _spawn_rngs(self, seed: int) -> list[np.random.Generator]:
-        children = np.random.SeedSequence(seed).spawn(self.n_envs)
+        # env e is child first_env + e: a share of a larger batch draws what that batch would
+        children = np.random.SeedSequence(seed).spawn(self.first_env + self.n_envs)
+        children = children[self.first_env :]
         return [np.random.default_rng(c) for c in children]
 
     def _set_pattern_names(self, names: tuple[str, ...]) -> None:
@@ -381,6 +393,11 @@ class BatchWorld:
         P = self.frames[ids, 0]
         slots = assign_slots_batch(P, self.pattern[ids])
         X = P.transpose(2, 1, 0)
+        C = self.pattern[ids].transpose(2, 1, 0)
+        self._C[:, :, ids] = C
+        self._Cc[:, :, ids] = C - C.sum(axis=1, keepdims=True) / self.n_robots  # = centred(C)
+        self._slots[:, ids] = slots.T
+        self._potentials[:, ids] = 0.0
         Q = self.pattern[ids[:, None], slots].transpose(2, 1, 0)  # the (centred) slot points
         G = Q + X.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)  # = slot_positions(...)
         gap = X - G
@@ -410,8 +427,13 @@ class BatchWorld:
         sel = slice(None) if ids is None else ids
         if not self.build_obs:
             return self._no_obs if ids is None else self._no_obs[: len(ids)]
-        goals = self._G.transpose(2, 1, 0)[sel] if self.obs_spec.needs_slots else None
-        obs = observe(self.obs_spec, self.frames[sel], goals, None, self.world)
+        if self.obs_spec.name == "general":  # the same values, built env-last (faster)
+            X = self._X if ids is None else self._X[:, :, ids]
+            G = self._G if ids is None else self._G[:, :, ids]
+            X_prev = self.frames[sel, 1].transpose(2, 1, 0)
+            k = self.obs_spec.k_neighbours
+            return general_observation_env_last(X, X_prev, G, k, self.world)
+        obs = observe(self.obs_spec, self.frames[sel], None, None, self.world)
         return obs.astype(np.float32)
 
     def observe(self) -> F32Array:
@@ -454,16 +476,28 @@ class BatchWorld:
         self._travel += np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
         return X1, hits, collisions
 
-    def _assign(self, X: Array, P: Array) -> tuple[IntArray, Array, Array]:
-        """The shared assignment at positions ``X`` (2, N, E) = ``P`` (E, N, 2), once per step.
+    def _assign(self, X: Array) -> tuple[IntArray, Array, Array]:
+        """The shared assignment at positions ``X`` (2, N, E), once per step.
 
-        Returns (slots (E, N), slot positions (2, N, E), squared slot distances
-        (N, E)): what ``assign_slots_batch(previous=...)``, ``slot_positions`` and
-        ``slot_distances ** 2`` give.
+        Returns (slots (N, E), slot positions (2, N, E), squared slot distances
+        (N, E)): what ``assign_slots_batch(previous=...)`` (transposed),
+        ``slot_positions`` and ``slot_distances ** 2`` give. The cost matrix is
+        :func:`runtime.formation.centred_cost`'s, built env-last (the same
+        operations, so the same bits); most envs keep their slots on a proof of
+        optimality instead of a solve (:func:`assign_slots_env_last`).
         """
-        slots = assign_slots_batch(P, self.pattern, previous=self.slots)
-        Q = _robot_major(self.pattern[self._env_col, slots])  # each robot's (centred) slot point
-        G = Q + X.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)
+        n = self.n_robots
+        total = X.sum(axis=1, keepdims=True)
+        Xc = X - total / n  # = centred(P)
+        Cc = self._Cc
+        dx = Xc[0][:, None, :] - Cc[0][None, :, :]  # (i, j, E): robot i to slot j
+        dy = Xc[1][:, None, :] - Cc[1][None, :, :]
+        dx *= dx
+        dy *= dy
+        dx += dy
+        slots = assign_slots_env_last(dx, self._slots, self._potentials)
+        Q = np.take_along_axis(self._C, slots[None], axis=1)  # each robot's (centred) slot point
+        G = Q + total * (1.0 / n)
         gap = X - G
         return slots, G, gap[0] * gap[0] + gap[1] * gap[1]
 
@@ -484,7 +518,7 @@ class BatchWorld:
         frames[:, 1:] = self.frames[:, :2]
         self.frames = frames
         self._X, self._G, self._dist, self._hits = X, G, np.sqrt(dist2), hits
-        self.slots, self.error = slots, error
+        self._slots, self.slots, self.error = slots, np.ascontiguousarray(slots.T), error
         self.steps += 1
         self.episode_return += reward.sum(axis=0) * (1.0 / self.n_robots)
 
@@ -522,7 +556,7 @@ class BatchWorld:
         V = self._velocities(actions)  # 1. actions -> velocities
         X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
         P1 = _env_major(X1)
-        slots, G, dist2 = self._assign(X1, P1)  # 4. shared assignment
+        slots, G, dist2 = self._assign(X1)  # 4. shared assignment
         error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
         formed = dist2.max(axis=0) <= self._formed_tol2
         cfg, reach = self.reward_config, self._reach  # 5. reward, (N, E)

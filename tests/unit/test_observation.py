@@ -128,3 +128,19 @@ def test_general_row_is_the_builders_row() -> None:
     for i in range(9):
         row = general_row(i, L, V, (float(sp[0, i, 0]), float(sp[0, i, 1])), 4)
         np.testing.assert_array_equal(row, full[i])
+
+
+def test_general_batch_rows_are_the_robot_rows_on_ties() -> None:
+    """On a lattice (many equal distances) the batch kernel and the robot's row kernel agree."""
+    rng = np.random.default_rng(7)
+    E, n, k = 6, 9, 6
+    pos = rng.integers(0, 3, (E, n, 2)).astype(float) * 0.5
+    prev = pos + rng.integers(-1, 2, (E, n, 2)) * 0.1
+    sp = pos + rng.normal(0, 1.0, pos.shape)
+    full = general_observation(pos, prev, sp, k)
+    for e in range(E):
+        L = pos[e].tolist()
+        V = frame_velocities(L, prev[e].tolist(), 0.1)
+        for i in range(n):
+            row = general_row(i, L, V, (float(sp[e, i, 0]), float(sp[e, i, 1])), k)
+            np.testing.assert_array_equal(row, full[e, i])

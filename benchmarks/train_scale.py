@@ -1,0 +1,179 @@
+"""Training that scales: the world's throughput, and training on Ray workers vs in-process.
+
+Rows, all measured in one run, side by side:
+
+* ``world``: ``BatchWorld.step`` at E envs x N robots (median wall time of
+  ``--repeats`` runs of ``--steps`` steps, random actions in the v_max disc),
+  with and without the general observation, for the *former* step (scipy's
+  Hungarian per env every step; the observation built in the (E, N, ...)
+  layout) and the *current* one (the batched proof of optimality, scipy only
+  where it fails; the observation built env-last). Same values, bit for bit.
+* ``train``: agent-steps/s of whole iterations (rollout + update + held-out
+  evaluation) for ``--train-s`` seconds: in-process, then 1 and 2 Ray workers
+  on a local instance (Ray's own start is not counted; the actors' is).
+* ``to-95``: seconds until the held-out success on a 10-robot circle
+  (general observation) reaches 95 %, per mode, bounded by ``--ttf-budget-s``
+  (a run that does not get there reports its best success instead).
+
+A model of scaling (why the figures look as they do)
+    One iteration costs ``t = t_roll / K + t_comm(K) + t_learn``: the rollout
+    (world steps + policy forward passes, ``E x T`` steps) splits over K
+    workers, each worker adds a fixed cost per iteration (the agent's
+    weights out, ~100 KB, and E_k x T x N samples back, a few MB, plus Ray's
+    scheduling, ~5-20 ms on one machine), and the update (``P + M + B``
+    gradient steps on the whole batch) stays in the driver. Throughput is
+    ``E T N / t``: it grows with K until ``t_roll / K`` falls to the size of
+    ``t_learn + t_comm``; past that point the learner is the bottleneck and
+    more workers add nothing (the limit is ``E T N / (t_learn + t_comm)``).
+    With the defaults the update is about as long as the rollout, so even
+    unlimited workers can at most double throughput unless the learner gets
+    a GPU or larger batches. On a 2-core machine shared with other work, K
+    workers also compete with the driver for the same cores: expect K = 1 to
+    cost its communication overhead and K = 2 to gain little.
+
+Usage: ``python benchmarks/train_scale.py [--json] [--train-s 30] [--ttf-budget-s 120]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from runtime.formation import _sq_cost, assign_slots_batch, keeps_previous
+from runtime.observation import ObservationSpec, observe
+from runtime.types import Array, F32Array, IntArray
+from trainer.config import TrainConfig
+from trainer.rollout import IN_PROCESS, RolloutMode
+from trainer.train import RunPlan, train
+from trainer.training_world import BatchWorld
+
+PATTERNS = ("circle", "line", "cross", "heart", "triangle")
+
+
+class FormerWorld(BatchWorld):
+    """The step as it was: scipy per env every step, the observation in the (E, N) layout."""
+
+    def _assign(self, X: Array) -> tuple[IntArray, Array, Array]:
+        P = np.ascontiguousarray(X.transpose(2, 1, 0))
+        slots = assign_slots_batch(P, self.pattern)  # every env solved, then the rule
+        cost = _sq_cost(P, self.pattern)
+        new = np.take_along_axis(cost, slots[..., None], -1)[..., 0].sum(-1)
+        old = np.take_along_axis(cost, self.slots[..., None], -1)[..., 0].sum(-1)
+        keep = keeps_previous(new, old)
+        slots[keep] = self.slots[keep]
+        out = slots.T.copy()
+        Q = np.take_along_axis(self._C, out[None], axis=1)
+        G = Q + X.sum(axis=1, keepdims=True) * (1.0 / self.n_robots)
+        gap = X - G
+        return out, G, gap[0] * gap[0] + gap[1] * gap[1]
+
+    def _observe(self, ids: IntArray | None = None) -> F32Array:
+        if not self.build_obs:
+            return super()._observe(ids)
+        sel = slice(None) if ids is None else ids
+        goals = self._G.transpose(2, 1, 0)[sel]
+        return observe(self.obs_spec, self.frames[sel], goals, None, self.world).astype(np.float32)
+
+
+def world_rate(cls: type[BatchWorld], E: int, N: int, obs: bool, steps: int, repeats: int
+               ) -> float:
+    """Median agent-steps/s of ``cls.step`` (random actions)."""
+    w = cls(E, N, PATTERNS, ObservationSpec("general"), seed=0, build_obs=obs)
+    rng = np.random.default_rng(0)
+
+    def acts() -> list[Array]:
+        out = []
+        for _ in range(steps):
+            ang = rng.uniform(0.0, 2.0 * np.pi, (E, N))
+            r = np.sqrt(rng.uniform(0.0, 1.0, (E, N)))
+            out.append(np.stack([r * np.cos(ang), r * np.sin(ang)], axis=-1))
+        return out
+
+    for a in acts():  # warm up into mid-episode states
+        w.step(a)
+    times = []
+    for _ in range(repeats):
+        A = acts()
+        t0 = time.perf_counter()
+        for a in A:
+            w.step(a)
+        times.append((time.perf_counter() - t0) / steps)
+    return E * N / statistics.median(times)
+
+
+def train_rate(mode: RolloutMode, seconds: float, cfg: TrainConfig) -> dict[str, Any]:
+    """Agent-steps/s over whole iterations for ``seconds``, in ``mode`` (Ray start excluded)."""
+    res = train(cfg, RunPlan(patterns=["circle"], out=Path("unused.onnx"), time_budget_s=seconds,
+                             write_files=False, progress=False, rollouts=mode))
+    last = res.curve[-1]  # every iteration counted, the first (and its worker start) included
+    rate = last["agent_steps"] / max(last["wall_s"], 1e-9)
+    return {"iterations": len(res.curve), "agent_steps_per_s": round(rate)}
+
+
+def time_to_95(mode: RolloutMode, budget_s: float, cfg: TrainConfig) -> dict[str, Any]:
+    res = train(cfg, RunPlan(patterns=["circle"], out=Path("unused.onnx"), until_success=0.95,
+                             time_budget_s=budget_s, write_files=False, progress=False,
+                             rollouts=mode))
+    reached = res.stopped == "success"
+    return {"reached": reached, "seconds": round(res.curve[-1]["wall_s"], 1),
+            "best_success": res.best_eval_success}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--envs", type=int, default=64)
+    ap.add_argument("--robots", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=50, help="world steps per timed run")
+    ap.add_argument("--repeats", type=int, default=7, help="timed world runs (median)")
+    ap.add_argument("--train-s", type=float, default=30.0, help="seconds of training per mode")
+    ap.add_argument("--ttf-budget-s", type=float, default=120.0,
+                    help="time-to-95 %% budget per mode; 0 skips")
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="Ray workers to try")
+    ap.add_argument("--no-ray", action="store_true", help="in-process rows only")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    args = ap.parse_args(argv)
+
+    world = {}
+    for obs in (False, True):
+        for name, cls in (("former", FormerWorld), ("current", BatchWorld)):
+            world[f"{name}/{'general' if obs else 'none'}"] = round(
+                world_rate(cls, args.envs, args.robots, obs, args.steps, args.repeats))
+    cfg = TrainConfig()
+    modes = [("in-process", IN_PROCESS)]
+    if not args.no_ray:
+        modes += [(f"ray x{k}", RolloutMode(ray=True, workers=k)) for k in args.workers]
+    training = {}
+    for label, mode in modes:
+        row = train_rate(mode, args.train_s, cfg)
+        if args.ttf_budget_s > 0:
+            row["to_95"] = time_to_95(mode, args.ttf_budget_s, cfg)
+        training[label] = row
+    out = {"benchmark": "train_scale", "cpus": os.cpu_count(),
+           "load_avg_1min": round(os.getloadavg()[0], 2), "E": args.envs, "N": args.robots,
+           "world_agent_steps_per_s": world, "training": training}
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"world, E={args.envs} N={args.robots}, agent-steps/s (median of {args.repeats})")
+    for obs in ("none", "general"):
+        f, c = world[f"former/{obs}"], world[f"current/{obs}"]
+        print(f"  obs={obs:8} former {f:>10,}  current {c:>10,}  x{c / f:.2f}")
+    print(f"training, {cfg.n_envs} envs x {cfg.n_robots} robots, {os.cpu_count()} CPUs, "
+          f"load {out['load_avg_1min']}")
+    for label, row in training.items():
+        ttf = row.get("to_95")
+        t = ("" if ttf is None else f"  to 95 %: {ttf['seconds']} s" if ttf["reached"]
+             else f"  not 95 % in {ttf['seconds']} s (best {100 * ttf['best_success']:.0f} %)")
+        print(f"  {label:11} {row['agent_steps_per_s']:>9,} agent-steps/s{t}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,123 @@
+"""Where a training run's rollouts come from: the batch world in this process, or Ray actors.
+
+The training loop (:mod:`trainer.train`) asks a :class:`RolloutSource` for one
+rollout per iteration and learns from it; it does not know where the worlds
+run. Two sources:
+
+``InProcessRollouts``
+    One :class:`~trainer.training_world.BatchWorld` of ``n_envs`` envs in the
+    trainer's own thread (the default).
+
+``RayRollouts`` (:mod:`trainer.ray_rollouts`, ``patternrl train --ray``)
+    K Ray actors, each holding its own world of a share of the ``n_envs``
+    envs (worker w owns envs ``[a_w, b_w)``): each iteration the driver puts
+    the policy's weights in Ray's object store, every actor plays its share
+    and the driver joins the K rollouts along the env axis and learns.
+
+Seeds: env e's starts come from child e of ``SeedSequence(world_seed)``
+whichever worker owns it (``BatchWorld(first_env=a_w)``), so K workers draw
+the very starts one process would. Action noise: with one source of noise
+(in-process, or a single Ray worker that is handed the run's generator state
+and hands it back) every draw is the in-process draw, so one Ray worker
+trains the same brain bit for bit; with K > 1 workers, worker w draws from
+its own generator seeded from (seed, stage, iteration at the stage's start, w).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+import torch
+
+from runtime.types import F32Array
+from runtime.world_config import WorldConfig
+from trainer.config import TrainConfig, obs_spec_for, reward_for
+from trainer.networks import Agent
+from trainer.training_world import BatchWorld
+
+if TYPE_CHECKING:
+    from trainer.train import RolloutResult
+
+RESUME_SEED_STRIDE = 7919
+"""A resumed run's worlds are seeded from ``seed + RESUME_SEED_STRIDE * iteration``."""
+
+
+@dataclass(frozen=True)
+class RolloutMode:
+    """How a run plays its rollouts: in-process, or on ``workers`` Ray actors."""
+
+    ray: bool = False
+    address: str | None = None
+    """A running Ray cluster (``ray start --head`` prints it); None starts a local instance."""
+    workers: int = 1
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ValueError(f"--ray-workers must be >= 1, got {self.workers}")
+
+    def describe(self) -> dict[str, object]:
+        """What the manifest records."""
+        if not self.ray:
+            return {"mode": "in-process"}
+        return {"mode": "ray", "workers": self.workers, "address": self.address or "local"}
+
+
+IN_PROCESS = RolloutMode()
+
+
+def env_shares(n_envs: int, workers: int) -> list[tuple[int, int]]:
+    """Each worker's envs ``[a, b)``: ``n_envs`` split as evenly as possible, in order."""
+    if workers > n_envs:
+        raise ValueError(f"{workers} Ray workers need at least as many envs, got {n_envs}")
+    base, extra = divmod(n_envs, workers)
+    out, a = [], 0
+    for w in range(workers):
+        b = a + base + (1 if w < extra else 0)
+        out.append((a, b))
+        a = b
+    return out
+
+
+def stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int,
+                share: tuple[int, int] | None = None) -> tuple[BatchWorld, F32Array]:
+    """A stage's worlds (all envs, or the ``share`` [a, b) of them) and their first observation."""
+    a, b = share if share is not None else (0, cfg.n_envs)
+    world_seed = cfg.seed + RESUME_SEED_STRIDE * it  # it = 0 unless resumed
+    bw = BatchWorld(b - a, cfg.n_robots, pattern, obs_spec_for(cfg), world=world,
+                    reward=reward_for(cfg), seed=world_seed, first_env=a)
+    obs = bw.observe()
+    if cfg.desync:
+        # every world starts at once; cut each first episode at a random step (a
+        # time-limit cut, bootstrapped) so that later memories mix all episode phases
+        rng = np.random.default_rng([cfg.seed, it, stage])
+        bw.steps[:] = rng.integers(0, bw.step_limit, size=cfg.n_envs)[a:b]
+    return bw, obs
+
+
+class RolloutSource(Protocol):
+    """One rollout per call, from wherever the worlds live."""
+
+    def collect(self, agent: Agent, gen: torch.Generator) -> RolloutResult:
+        """``rollout_steps`` steps of every env under ``agent`` (noise from ``gen``)."""
+
+    def close(self) -> None:
+        """Release the worlds (and workers)."""
+
+
+def worker_generator(cfg: TrainConfig, stage: int, it: int, worker: int) -> torch.Generator:
+    """Worker ``worker``'s action-noise stream when K > 1 workers play."""
+    seed = int(np.random.SeedSequence([cfg.seed, stage, it, worker]).generate_state(1)[0])
+    return torch.Generator().manual_seed(seed)
+
+
+__all__ = [
+    "IN_PROCESS",
+    "RESUME_SEED_STRIDE",
+    "RolloutMode",
+    "RolloutSource",
+    "env_shares",
+    "stage_world",
+    "worker_generator",
+]
