@@ -16,8 +16,9 @@ What it does:
    ``--tls-dir DIR`` uses keys of ``patternrl keys create``, ``--insecure`` runs
    open TCP), opens the world's Zenoh session in peer mode, listening with mutual
    TLS on a free loopback port, and starts ``--robots`` robot processes
-   (``patternrl robot``, each with its own identity) that connect to it, each with the first pattern's brain; at every pattern change the world
-   swaps in the next pattern's brain where it differs (paper brains);
+   (``patternrl robot``, each with its own identity) that connect to it, each
+   with the first pattern's brain; at every pattern change the world swaps in
+   the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
    MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
