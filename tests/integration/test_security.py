@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import ROOT, free_port, wait_for
+from support import free_port, wait_for
 
 from runtime import keys
 from runtime.identity import load_identity
@@ -29,6 +29,7 @@ from sim_bridge.log_reader import read_log
 from sim_bridge.swarm_keys import create_swarm_keys
 
 SWARM = "sec"
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PY, ROOT, Net, cut_for, wait_for
+from netns_hosts import PY, ROOT, Net, cut_for, wait_for
 
 from runtime import keys
 from runtime.identity import load_identity
