@@ -307,7 +307,7 @@ def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...
     cmd = [sys.executable, "-m", "patternrl.cli", "launch", "--robots", str(robots),
            "--patterns", f"heart,{star}", "--brains", brain_ref, "--record", str(log),
            "--seed", str(seed), "--swarm", swarm, "--zenoh-port", str(port), "--no-plot",
-           "--json"]
+           "--json", "--insecure"]  # the step watcher joins on open TCP
     t0 = time.monotonic()
     launcher = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 stdin=subprocess.DEVNULL, start_new_session=True,

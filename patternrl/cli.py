@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("sim_bridge.sim", "play the pymunk world over Zenoh, recording an MCAP log"),
     "launch": ("sim_bridge.launch", "start a world and one robot process per robot: the demo"),
     "replay": ("sim_bridge.replay", "report, draw, play back or re-run an MCAP log"),
+    "keys": ("sim_bridge.swarm_keys", "create a swarm's certificate authority and identities"),
 }
 
 

@@ -11,10 +11,14 @@ What it does:
    ``--brains DIR`` (e.g. ``--brains exports --brain-kind paper``: the paper
    brains, one per pattern), ``--brains FILE.onnx`` or ``--brains rule:assign``
    choose explicitly. The first line and the table say which brain ran each pattern;
-2. opens the world's Zenoh session in peer mode, listening on a free loopback
-   port, and starts ``--robots`` robot processes (``patternrl robot``) that connect
-   to it, each with the first pattern's brain; at every pattern change the world
-   swaps in the next pattern's brain where it differs (paper brains);
+2. makes the run's keys (a swarm authority and one identity per member, in a
+   private temporary directory removed at the end: :mod:`sim_bridge.launch_keys`;
+   ``--tls-dir DIR`` uses keys of ``patternrl keys create``, ``--insecure`` runs
+   open TCP), opens the world's Zenoh session in peer mode, listening with mutual
+   TLS on a free loopback port, and starts ``--robots`` robot processes
+   (``patternrl robot``, each with its own identity) that connect to it, each
+   with the first pattern's brain; at every pattern change the world swaps in
+   the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
    MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
@@ -51,11 +55,19 @@ from typing import IO, Any
 
 from runtime.errors import InputError
 from runtime.patterns import pattern_label
-from runtime.zenoh_session import ZenohSetupError, open_session, world_port
+from runtime.zenoh_session import (
+    ZenohSetupError,
+    add_zenoh_arguments,
+    config_from_args,
+    open_config,
+    world_port,
+)
 from sim_bridge.brain_choice import BrainChoice, pick_brains
+from sim_bridge.launch_keys import RunKeys, run_keys
 from sim_bridge.recorder import Recorder
 from sim_bridge.run_results import PhaseResult, Progress, RunResult, result_dict
-from sim_bridge.sim import add_world_arguments, config_from_args
+from sim_bridge.sim import add_world_arguments
+from sim_bridge.sim import config_from_args as world_config_from_args
 from sim_bridge.sim_world import SimWorld
 from sim_bridge.world_log import Say
 
@@ -80,6 +92,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the world's loopback port (default: a free one), e.g. to watch the run")
     p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
     p.add_argument("-v", "--verbose", action="store_true", help="every world message")
+    add_zenoh_arguments(p)  # the world's session; --tls-dir: keys of 'patternrl keys create'
 
 
 # ------------------------------------------------------------------------ robots
@@ -105,13 +118,15 @@ class Robots:
         self._log: IO[bytes] | None = None
 
     def start(self, n: int, swarm: str, port: int, brain: str, args: argparse.Namespace,
-              log_path: Path) -> None:
+              log_path: Path, keys_dir: Path | None = None) -> None:
+        """``keys_dir``: the swarm's keys (robot i speaks as keys_dir/robot-i); None: open TCP."""
         self._log = open(log_path, "ab")  # closed in stop()
         for rid in range(n):
             cmd = [sys.executable, "-m", "patternrl.cli", "robot", "--swarm", swarm,
                    "--id", str(rid), "--brain", brain, "--mode", args.mode,
                    "--zenoh-port", str(port), "--safety", args.safety,
                    "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
+            cmd += ["--insecure"] if keys_dir is None else ["--tls-dir", str(keys_dir)]
             if args.mode == "realtime":
                 cmd += ["--rate-hz", str(args.rate_hz)]
             else:  # a robot waits for every pose of a step about as long as the world waits
@@ -251,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
     patterns = [p.strip() for p in str(args.patterns).split(",") if p.strip()]
     try:
         brains, brains_line = pick_brains(args.brains, patterns, args.robots, args.brain_kind)
-        cfg = config_from_args(args, brains)
+        cfg = world_config_from_args(args, brains)
     except InputError as e:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
@@ -271,8 +286,15 @@ def run(args: argparse.Namespace) -> int:
         print(msg, file=err, flush=True)
 
     try:
-        session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+        creds: RunKeys = run_keys(args, swarm)
+    except InputError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
+    try:
+        args.zenoh_port = port
+        session = open_config(config_from_args(creds.world_args(args), "world", swarm))
     except ZenohSetupError as e:
+        creds.close()
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
     rec = Recorder(record)
@@ -298,11 +320,11 @@ def run(args: argparse.Namespace) -> int:
 
     first = brains[patterns[0]].ref
     say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
-        f"(zenoh tcp/127.0.0.1:{port}), log {record}")
+        f"(zenoh {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
     res: RunResult | None = None
     try:
         world.open()  # listening before the robots come: their first status says their brain
-        robots.start(args.robots, swarm, port, first, args, robots_log)
+        robots.start(args.robots, swarm, port, first, args, robots_log, creds.dir)
         watcher = threading.Thread(target=watch, name="robot-watch", daemon=True)
         watcher.start()
         res = world.run()
@@ -312,6 +334,7 @@ def run(args: argparse.Namespace) -> int:
         robots.stop()
         rec.close()
         session.close()  # type: ignore[no-untyped-call]
+        creds.close()
         for s, h in old.items():
             signal.signal(s, h)
     assert res is not None  # world.run() returned (it raises only on a bug)

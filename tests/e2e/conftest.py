@@ -36,6 +36,8 @@ from runtime.messages import (
 from runtime.zenoh_session import open_session
 
 ROOT = Path(__file__).resolve().parents[2]
+OPEN_COMMANDS = ("sim", "robot", "swap")
+"""Started with --insecure: the watchers here join on open TCP (launch keeps its own TLS)."""
 
 
 # re-exported: tests import these from conftest
@@ -74,6 +76,8 @@ class Procs:
     def start(self, name: str, *argv: str) -> subprocess.Popen[bytes]:
         log = open(self.tmp / f"{name}.log", "wb")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        if argv and argv[0] in OPEN_COMMANDS:  # these tests run open on loopback
+            argv = (argv[0], "--insecure", *argv[1:])
         p = subprocess.Popen([sys.executable, "-m", "patternrl.cli", *argv], cwd=ROOT,
                              stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                              start_new_session=True, env=env)

@@ -176,7 +176,8 @@ def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -
     swarm, port = swarm_name("int"), kit.free_port()
     launch = procs.start("launch", "launch", "--robots", "3", "--patterns",
                          "circle,line,circle,line", "--mode", "realtime", "--rate-hz", "20",
-                         "--record", str(log), "--swarm", swarm, "--zenoh-port", str(port))
+                         "--record", str(log), "--swarm", swarm, "--zenoh-port", str(port),
+                         "--insecure")  # the watcher joins on open TCP
     watcher = kit.Watcher(swarm, port)
     try:
         kit.wait_for(lambda: watcher.step() >= 5, 60, "the launched world to run 5 steps")

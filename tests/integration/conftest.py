@@ -211,6 +211,7 @@ class RobotProc:
             str(rid),
             "--brain",
             brain,
+            "--insecure",
         ]
         if not default_endpoints:
             cmd += ["--connect", world.endpoint, "--listen", "tcp/127.0.0.1:0"]

@@ -78,11 +78,11 @@ def real_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
     sim = subprocess.Popen(
         [PY, "-m", "patternrl.cli", "sim", "--swarm", swarm, "--robots", "4",
          "--patterns", "circle,line", "--seed", "1", "--record", str(log), "--json",
-         "--zenoh-port", str(port), "--wait-robots-s", "60"],
+         "--zenoh-port", str(port), "--wait-robots-s", "60", "--insecure"],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     robots = [subprocess.Popen(
         [PY, "-m", "patternrl.cli", "robot", "--swarm", swarm, "--id", str(i), "--brain",
-         "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2"],
+         "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2", "--insecure"],
         cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         for i in range(4)]
     try:
@@ -581,7 +581,7 @@ def listener() -> Iterator[Any]:
 def _player(log: Path, listener: Listener, *extra: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [PY, "-m", "patternrl.cli", "replay", str(log), "--play", "--connect", listener.endpoint,
-         "--listen", "tcp/127.0.0.1:0", "--wait-subscribers", "20", *extra],
+         "--listen", "tcp/127.0.0.1:0", "--wait-subscribers", "20", "--insecure", *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -229,6 +229,7 @@ def run_swap_cli(world: StubWorld, brain: str, *extra: str) -> subprocess.Comple
         brain,
         "--connect",
         world.endpoint,
+        "--insecure",
         *extra,
     ]
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=60)
