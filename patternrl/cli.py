@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("sim_bridge.sim", "play the pymunk world over Zenoh, recording an MCAP log"),
     "launch": ("sim_bridge.launch", "start a world and one robot process per robot: the demo"),
     "replay": ("sim_bridge.replay", "report, draw, play back or re-run an MCAP log"),
+    "brain": ("runtime.brain_cli", "make a signing key, sign a brain, verify its signature"),
 }
 
 
@@ -38,6 +39,14 @@ def _top_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C while starting up (imports, options): one line
+        print("patternrl: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in COMMANDS:
         parser = _top_parser()

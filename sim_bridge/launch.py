@@ -51,6 +51,7 @@ from typing import IO, Any
 
 from runtime.errors import InputError
 from runtime.patterns import pattern_label
+from runtime.signing import run_operator_key
 from runtime.zenoh_session import ZenohSetupError, open_session, world_port
 from sim_bridge.brain_choice import BrainChoice, pick_brains
 from sim_bridge.recorder import Recorder
@@ -112,6 +113,8 @@ class Robots:
                    "--id", str(rid), "--brain", brain, "--mode", args.mode,
                    "--zenoh-port", str(port), "--safety", args.safety,
                    "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
+            for key in getattr(args, "trust", []):  # the run's operator key
+                cmd += ["--trust", key]
             if args.mode == "realtime":
                 cmd += ["--rate-hz", str(args.rate_hz)]
             else:  # a robot waits for every pose of a step about as long as the world waits
@@ -258,6 +261,11 @@ def run(args: argparse.Namespace) -> int:
     record: Path = args.record or Path("runs") / "demo.mcap"
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
+    try:  # a per-run operator key the robots trust: sign a brain with it to swap it in
+        args.trust = [f"{run_operator_key(record.with_suffix('.keys'))}.pub"]
+    except InputError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
     # the swarm's own port when free, so `patternrl swap --swarm S` finds the run unaided
     port = args.zenoh_port or free_port(world_port(swarm))
     out, err = sys.stdout, sys.stderr
