@@ -126,6 +126,7 @@ class Robot:
             stale_s=cfg.stale_s,
             log=self.log,
             drop=self._drop,
+            on_restart=lambda: self.pattern.world_restarted(),
         )
         self.pattern = TeamPattern(cfg.pattern, world, self.log)
         self.pattern.use_brain(brain)
@@ -197,8 +198,10 @@ class Robot:
     def _take_pattern(self, payload: bytes) -> None:
         try:
             self.pattern.offer(decode_pattern(payload))
-        except (MessageError, PatternError) as e:
+        except (MessageError, PatternError) as e:  # sizes, values, then meaning
             self._drop("pattern", str(e))
+        except Exception as e:  # whatever arrives, never a traceback on Zenoh's thread
+            self._drop("pattern", f"{type(e).__name__}: {e}")
 
     def _on_brain(self, sample: zenoh.Sample) -> None:
         self.swaps.offer(sample.payload.to_bytes())

@@ -7,6 +7,13 @@ start take the seeded starts (uniform in the arena, pairwise
 >= ``world.start_separation_m``) in id order; a robot that joins later is placed
 at a free seeded spot, one that leaves is removed; both are logged (``join`` and
 ``leave`` events). The world then resizes the pattern to the live count.
+
+Admission: a liveliness token alone does not make a robot. A robot is admitted
+once its token is up **and** it has spoken on its own keys (a status or a
+command whose id matches its key: every robot publishes a status as it starts
+and once a second). A token nobody answers for (``alive/77`` from a peer that is
+no robot) is ignored and counted (``robot_ignored`` events, one per id), and
+never joins the world, so it never stalls a step.
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ if TYPE_CHECKING:
 
 ROSTER_POLL_S = 0.2
 """Longest wait between checks of a stop while waiting for robots."""
+UNHEARD_S = 3.0
+"""A token without a word from its robot for this long is reported as ignored."""
 
 
 class Roster:
@@ -44,18 +53,53 @@ class Roster:
         self.gone: set[int] = set()
         """Robots whose token went down and did not come back (read under ``cond``)."""
         self._changes: queue.SimpleQueue[tuple[bool, int]] = queue.SimpleQueue()
+        self._tokens: dict[int, float] = {}  # token up -> monotonic s it came up
+        self._heard: set[int] = set()  # robots that spoke on their own keys
+        self._reported: set[int] = set()
+        self.ignored = 0
+        """Tokens ignored: up for UNHEARD_S without a word from their robot."""
 
     def saw(self, rid: int, joined: bool) -> None:
         """A robot's token came up (``joined``) or went down."""
         with self._cond:
             if joined:
-                self.alive.add(rid)
-                self.gone.discard(rid)
+                self._tokens.setdefault(rid, time.monotonic())
+                if rid in self._heard:
+                    self._admit(rid)
             else:
-                self.alive.discard(rid)
-                self.gone.add(rid)
-            self._changes.put((joined, rid))
-            self._cond.notify_all()
+                self._tokens.pop(rid, None)
+                if rid in self.alive:
+                    self.alive.discard(rid)
+                    self.gone.add(rid)
+                    self._changes.put((False, rid))
+                    self._cond.notify_all()
+
+    def heard(self, rid: int) -> None:
+        """Robot ``rid`` spoke on its own keys (a status or command that decoded)."""
+        with self._cond:
+            if rid in self._heard:
+                return
+            self._heard.add(rid)
+            if rid in self._tokens:
+                self._admit(rid)
+
+    def _admit(self, rid: int) -> None:  # holding cond
+        if rid in self.alive:
+            return
+        self.alive.add(rid)
+        self.gone.discard(rid)
+        self._changes.put((True, rid))
+        self._cond.notify_all()
+
+    def unheard(self) -> list[int]:
+        """Tokens up for UNHEARD_S with no word from their robot, each reported once."""
+        now = time.monotonic()
+        with self._cond:
+            out = [r for r, t in self._tokens.items()
+                   if r not in self.alive and r not in self._reported and now - t > UNHEARD_S]
+            self._reported.update(out)
+            self.ignored += len(out)
+        return sorted(out)
 
     def wait_for(self, n: int, timeout_s: float, stop: threading.Event) -> int:
         """Wait until ``n`` robots are alive, ``timeout_s`` passed or ``stop``; how many are."""
@@ -118,8 +162,16 @@ class Membership:
         for rid, (x, y) in zip(ids, starts, strict=False):
             self._add(rid, float(x), float(y), at_start=True)
 
+    def _report_ignored(self) -> None:
+        for rid in self.roster.unheard():
+            self.log.event("robot_ignored", robot=rid,
+                           reason=f"liveliness token without a word from robot {rid} "
+                                  f"for {UNHEARD_S:g} s: not admitted")
+            self.log.say(f"robot {rid}: a token without a robot, ignored")
+
     def apply(self) -> tuple[int, int]:
         """The joins and leaves since the last step: (joined, left)."""
+        self._report_ignored()
         joined = left = 0
         for came, rid in self.roster.changes():
             present = rid in self.physics.ids
