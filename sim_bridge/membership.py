@@ -8,12 +8,13 @@ start take the seeded starts (uniform in the arena, pairwise
 at a free seeded spot, one that leaves is removed; both are logged (``join`` and
 ``leave`` events). The world then resizes the pattern to the live count.
 
-Admission: a liveliness token alone does not make a robot. A robot is admitted
-once its token is up **and** it has spoken on its own keys (a status or a
-command whose id matches its key: every robot publishes a status as it starts
-and once a second). A token nobody answers for (``alive/77`` from a peer that is
-no robot) is ignored and counted (``robot_ignored`` events, one per id), and
-never joins the world, so it never stalls a step.
+Phantoms: a liveliness token alone does not keep a robot in the world. A robot
+must speak on its own keys (a status or a command whose id matches its key:
+every robot publishes a status as it starts and once a second) within
+:data:`UNHEARD_S` of its token; a token nobody speaks for (``alive/77`` from a
+peer that is no robot) is taken out of the world, counted and logged
+(``robot_ignored``), and comes back only if its robot ever speaks. Meanwhile
+the world does not wait for it (:data:`sim_bridge.world_link.SILENT_STEPS`).
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ class Roster:
         self._changes: queue.SimpleQueue[tuple[bool, int]] = queue.SimpleQueue()
         self._tokens: dict[int, float] = {}  # token up -> monotonic s it came up
         self._heard: set[int] = set()  # robots that spoke on their own keys
-        self._reported: set[int] = set()
+        self._ignored: set[int] = set()  # tokens without a robot, taken out of the world
         self.ignored = 0
         """Tokens ignored: up for UNHEARD_S without a word from their robot."""
 
@@ -64,15 +65,17 @@ class Roster:
         with self._cond:
             if joined:
                 self._tokens.setdefault(rid, time.monotonic())
-                if rid in self._heard:
-                    self._admit(rid)
+                if rid in self._ignored:
+                    return  # still no word from it
+                self.alive.add(rid)
+                self.gone.discard(rid)
             else:
                 self._tokens.pop(rid, None)
-                if rid in self.alive:
-                    self.alive.discard(rid)
-                    self.gone.add(rid)
-                    self._changes.put((False, rid))
-                    self._cond.notify_all()
+                self._ignored.discard(rid)
+                self.alive.discard(rid)
+                self.gone.add(rid)
+            self._changes.put((joined, rid))
+            self._cond.notify_all()
 
     def heard(self, rid: int) -> None:
         """Robot ``rid`` spoke on its own keys (a status or command that decoded)."""
@@ -80,26 +83,28 @@ class Roster:
             if rid in self._heard:
                 return
             self._heard.add(rid)
-            if rid in self._tokens:
-                self._admit(rid)
-
-    def _admit(self, rid: int) -> None:  # holding cond
-        if rid in self.alive:
-            return
-        self.alive.add(rid)
-        self.gone.discard(rid)
-        self._changes.put((True, rid))
-        self._cond.notify_all()
+            if rid in self._ignored and rid in self._tokens:  # it was a robot after all
+                self._ignored.discard(rid)
+                self.alive.add(rid)
+                self.gone.discard(rid)
+                self._changes.put((True, rid))
+                self._cond.notify_all()
 
     def unheard(self) -> list[int]:
-        """Tokens up for UNHEARD_S with no word from their robot, each reported once."""
+        """Robots alive UNHEARD_S without a word: taken out (a leave) and counted, once each."""
         now = time.monotonic()
         with self._cond:
-            out = [r for r, t in self._tokens.items()
-                   if r not in self.alive and r not in self._reported and now - t > UNHEARD_S]
-            self._reported.update(out)
+            out = sorted(r for r in self.alive
+                         if r not in self._heard and now - self._tokens.get(r, now) > UNHEARD_S)
+            for r in out:
+                self.alive.discard(r)
+                self.gone.add(r)
+                self._ignored.add(r)
+                self._changes.put((False, r))
             self.ignored += len(out)
-        return sorted(out)
+            if out:
+                self._cond.notify_all()
+        return out
 
     def wait_for(self, n: int, timeout_s: float, stop: threading.Event) -> int:
         """Wait until ``n`` robots are alive, ``timeout_s`` passed or ``stop``; how many are."""
@@ -166,7 +171,7 @@ class Membership:
         for rid in self.roster.unheard():
             self.log.event("robot_ignored", robot=rid,
                            reason=f"liveliness token without a word from robot {rid} "
-                                  f"for {UNHEARD_S:g} s: not admitted")
+                                  f"for {UNHEARD_S:g} s: taken out")
             self.log.say(f"robot {rid}: a token without a robot, ignored")
 
     def apply(self) -> tuple[int, int]:

@@ -217,6 +217,9 @@ class Stepper(threading.Thread):
         assert self.error is None, self.error
 
 
+from runtime.signing import generate_key  # noqa: E402
+
+
 def run_swap_cli(world: StubWorld, brain: str, *extra: str) -> subprocess.CompletedProcess[str]:
     cmd = [
         sys.executable,
@@ -246,6 +249,11 @@ def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
         "corrupt": (write_test_brain(tmp_path, "corrupt", corrupt=True), "cannot load"),
         "nan": (write_test_brain(tmp_path, "nan", nan=True), "non-finite"),
         "digest": (write_test_brain(tmp_path, "digest", wrong_digest=True), "digest mismatch"),
+        "unsigned": (write_test_brain(tmp_path, "unsigned", sign_key=False), "not signed"),
+        "untrusted": (
+            write_test_brain(tmp_path, "untrusted", sign_key=generate_key(tmp_path / "other")),
+            "untrusted key",
+        ),
     }
     stepper = Stepper(world, spread(n, seed=5, side=1.5))
     stepper.start()
