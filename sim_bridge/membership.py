@@ -8,13 +8,14 @@ start take the seeded starts (uniform in the arena, pairwise
 at a free seeded spot, one that leaves is removed; both are logged (``join`` and
 ``leave`` events). The world then resizes the pattern to the live count.
 
-Phantoms: a liveliness token alone does not keep a robot in the world. A robot
-must speak on its own keys (a status or a command whose id matches its key:
-every robot publishes a status as it starts and once a second) within
-:data:`UNHEARD_S` of its token; a token nobody speaks for (``alive/77`` from a
-peer that is no robot) is taken out of the world, counted and logged
-(``robot_ignored``), and comes back only if its robot ever speaks. Meanwhile
-the world does not wait for it (:data:`sim_bridge.world_link.SILENT_STEPS`).
+Phantoms: once the run has started, a liveliness token alone does not make a
+robot: it joins when its robot has spoken on its own keys (a status or a
+command whose id matches its key; every robot publishes a status as it starts
+and once a second). A token nobody speaks for within :data:`UNHEARD_S`
+(``alive/77`` from a peer that is no robot) is ignored, counted and logged once
+(``robot_ignored``); one that was let in while the world waited for its team
+is taken out again. The world never waits for a robot that does not answer
+(:data:`sim_bridge.world_link.SILENT_STEPS`).
 """
 
 from __future__ import annotations
@@ -56,26 +57,27 @@ class Roster:
         self._changes: queue.SimpleQueue[tuple[bool, int]] = queue.SimpleQueue()
         self._tokens: dict[int, float] = {}  # token up -> monotonic s it came up
         self._heard: set[int] = set()  # robots that spoke on their own keys
-        self._ignored: set[int] = set()  # tokens without a robot, taken out of the world
+        self._ignored: set[int] = set()  # tokens without a robot, counted once each
         self.ignored = 0
         """Tokens ignored: up for UNHEARD_S without a word from their robot."""
+        self.started = False
+        """Once the run started, a token joins only when its robot has spoken."""
 
     def saw(self, rid: int, joined: bool) -> None:
         """A robot's token came up (``joined``) or went down."""
         with self._cond:
             if joined:
                 self._tokens.setdefault(rid, time.monotonic())
-                if rid in self._ignored:
-                    return  # still no word from it
-                self.alive.add(rid)
-                self.gone.discard(rid)
+                if self.started and rid not in self._heard:
+                    return  # admitted once it speaks (heard)
+                self._admit(rid)
             else:
                 self._tokens.pop(rid, None)
-                self._ignored.discard(rid)
-                self.alive.discard(rid)
-                self.gone.add(rid)
-            self._changes.put((joined, rid))
-            self._cond.notify_all()
+                if rid in self.alive or not self.started:
+                    self.alive.discard(rid)
+                    self.gone.add(rid)
+                    self._changes.put((False, rid))
+                    self._cond.notify_all()
 
     def heard(self, rid: int) -> None:
         """Robot ``rid`` spoke on its own keys (a status or command that decoded)."""
@@ -83,27 +85,35 @@ class Roster:
             if rid in self._heard:
                 return
             self._heard.add(rid)
-            if rid in self._ignored and rid in self._tokens:  # it was a robot after all
-                self._ignored.discard(rid)
-                self.alive.add(rid)
-                self.gone.discard(rid)
-                self._changes.put((True, rid))
-                self._cond.notify_all()
+            if rid in self._tokens:
+                self._admit(rid)
+
+    def _admit(self, rid: int) -> None:  # holding cond
+        if rid in self.alive:
+            return
+        self.alive.add(rid)
+        self.gone.discard(rid)
+        self._changes.put((True, rid))
+        self._cond.notify_all()
 
     def unheard(self) -> list[int]:
-        """Robots alive UNHEARD_S without a word: taken out (a leave) and counted, once each."""
+        """Tokens up UNHEARD_S without a word from their robot, each counted once.
+
+        One that was let in at the start is taken out (a leave).
+        """
         now = time.monotonic()
         with self._cond:
-            out = sorted(r for r in self.alive
-                         if r not in self._heard and now - self._tokens.get(r, now) > UNHEARD_S)
+            out = sorted(r for r, t in self._tokens.items()
+                         if r not in self._heard and r not in self._ignored
+                         and now - t > UNHEARD_S)
             for r in out:
-                self.alive.discard(r)
-                self.gone.add(r)
                 self._ignored.add(r)
-                self._changes.put((False, r))
+                if r in self.alive:
+                    self.alive.discard(r)
+                    self.gone.add(r)
+                    self._changes.put((False, r))
+                    self._cond.notify_all()
             self.ignored += len(out)
-            if out:
-                self._cond.notify_all()
         return out
 
     def wait_for(self, n: int, timeout_s: float, stop: threading.Event) -> int:
@@ -160,6 +170,7 @@ class Membership:
 
     def place_start(self, n: int) -> None:
         """The robots alive now take the seeded starts of ``n`` (or more) robots, in id order."""
+        self.roster.started = True  # from now on a token joins once its robot speaks
         for _ in self.roster.changes():  # the joins already known: placed here
             pass
         ids = self.roster.alive_ids()
@@ -171,7 +182,7 @@ class Membership:
         for rid in self.roster.unheard():
             self.log.event("robot_ignored", robot=rid,
                            reason=f"liveliness token without a word from robot {rid} "
-                                  f"for {UNHEARD_S:g} s: taken out")
+                                  f"for {UNHEARD_S:g} s: ignored")
             self.log.say(f"robot {rid}: a token without a robot, ignored")
 
     def apply(self) -> tuple[int, int]:

@@ -282,7 +282,7 @@ def write_test_brain(
     seed: int = 0,
     hidden: tuple[int, ...] = (32, 32),
     gain: float = 0.5,
-    sign_key: Path | None | bool = True,
+    sign_key: Path | bool | None = True,
 ) -> Path:
     """A general-observation MLP brain ``<name>.onnx`` with its sidecar manifest.
 
