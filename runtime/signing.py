@@ -23,16 +23,20 @@ per-run operator key this way).
 
 from __future__ import annotations
 
+import base64
+import binascii
 import hashlib
 import json
 import os
+import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
+# Only ed25519 at import (~15 ms): cryptography's key-file serialisation costs ~80 ms and
+# ~8 MB more, so it is imported where a private key is written or read, never by a robot.
 from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
 from runtime.errors import InputError
@@ -79,8 +83,7 @@ def key_id(public_hex: str) -> str:
 
 
 def _raw_hex(pub: Ed25519PublicKey) -> str:
-    raw = pub.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
-    return raw.hex()
+    return pub.public_bytes_raw().hex()
 
 
 # ------------------------------------------------------------------ key files
@@ -91,6 +94,8 @@ def generate_key(path: Path, comment: str = "patternrl brain key") -> Path:
     pub_path = path.with_name(path.name + ".pub")
     if path.exists() or pub_path.exists():
         raise InputError(f"key {path} already exists: not overwritten")
+    from cryptography.hazmat.primitives import serialization
+
     key = Ed25519PrivateKey.generate()
     private = key.private_bytes(
         serialization.Encoding.PEM,
@@ -138,6 +143,8 @@ def run_operator_key(folder: str | Path) -> Path:
 
 def load_private_key(path: str | Path) -> Ed25519PrivateKey:
     """An OpenSSH (or PEM PKCS8) ed25519 private key; :class:`InputError` if unusable."""
+    from cryptography.hazmat.primitives import serialization
+
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -162,13 +169,21 @@ def load_public_key(path: str | Path) -> str:
         data = p.read_bytes().strip()
     except OSError as e:
         raise InputError(f"cannot read public key {p}: {e.strerror or e}") from None
+    # "ssh-ed25519 <base64 of: u32 len, 'ssh-ed25519', u32 len, 32 key bytes> [comment]"
+    parts = data.split()
+    if len(parts) < 2 or parts[0] != b"ssh-ed25519":
+        raise InputError(f"{p} is not an OpenSSH ed25519 public key ('ssh-ed25519 AAAA...')")
     try:
-        key: Any = serialization.load_ssh_public_key(data)
-    except (ValueError, TypeError, IndexError):
-        raise InputError(f"{p} is not an OpenSSH public key ('ssh-ed25519 AAAA...')") from None
-    if not isinstance(key, Ed25519PublicKey):
-        raise InputError(f"public key {p} is not an ed25519 key")
-    return _raw_hex(key)
+        blob = base64.b64decode(parts[1], validate=True)
+        (n,) = struct.unpack_from(">I", blob, 0)
+        name = blob[4 : 4 + n]
+        (m,) = struct.unpack_from(">I", blob, 4 + n)
+        raw = blob[8 + n : 8 + n + m]
+    except (binascii.Error, struct.error, ValueError):
+        raw, name, m = b"", b"", 0
+    if name != b"ssh-ed25519" or m != 32 or len(raw) != 32 or 8 + n + m != len(blob):
+        raise InputError(f"{p} is not an OpenSSH ed25519 public key ('ssh-ed25519 AAAA...')")
+    return raw.hex()
 
 
 # ------------------------------------------------------------------ trust
