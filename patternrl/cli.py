@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("sim_bridge.launch", "start a world and one robot process per robot: the demo"),
     "replay": ("sim_bridge.replay", "report, draw, play back or re-run an MCAP log"),
     "keys": ("sim_bridge.swarm_keys", "create a swarm's certificate authority and identities"),
+    "brain": ("runtime.brain_cli", "make a signing key, sign a brain, verify its signature"),
 }
 
 
@@ -59,6 +60,14 @@ def _top_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C while starting up (imports, options): one line
+        print("patternrl: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in ("-V", "--version"):
         print(f"patternrl {version()}")

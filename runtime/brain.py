@@ -27,7 +27,9 @@ with the manifest ``{"rule": "rule:assign"}`` and no ONNX bytes
 
 Validation (:func:`validate_brain_bytes`, used for files and for hot swaps)
 refuses a brain with a one-line :class:`BrainError` when its digest does not
-match, onnxruntime cannot load it, its inputs/outputs do not match the spec
+match, it is not signed by a key of ``trust`` (when given: the robot always
+gives its trusted keys, :mod:`runtime.signing`; rule brains need no
+signature), onnxruntime cannot load it, its inputs/outputs do not match the spec
 the manifest declares, or it answers non-finite values on a fixed set of
 seeded probe observations. A brain that passes is warmed before it is
 returned, so its first real decision is as fast as the next ones.
@@ -53,11 +55,13 @@ from runtime.brain_manifest import (
     BrainManifest,
     error_line,
 )
+from runtime.errors import InputError
 from runtime.observation import (
     ObservationSpec,
     general_observation,
     paper_observation,
 )
+from runtime.signing import TrustedKeys, verify_manifest
 from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -343,15 +347,17 @@ def validate_brain_bytes(
     manifest: BrainManifest,
     expected_digest: str,
     world: WorldConfig = DEFAULT_WORLD,
+    trust: TrustedKeys | None = None,
 ) -> OnnxBrain:
     """Check a brain fully and return it loaded and warmed, or raise :class:`BrainError`.
 
     Refuses: bytes whose sha256 differs from ``expected_digest`` (or from the
     manifest's ``brain_id`` when it has one), bytes onnxruntime cannot load,
     inputs/outputs that do not match the manifest's observation spec, and
-    non-finite outputs on :func:`probe_observations`.
+    non-finite outputs on :func:`probe_observations`; with ``trust``, a
+    manifest not signed by one of its keys (checked before onnxruntime reads a byte).
     """
-    return _validate_bytes(bytes(onnx_bytes), manifest, expected_digest, world, None)
+    return _validate_bytes(bytes(onnx_bytes), manifest, expected_digest, world, None, trust)
 
 
 def _validate_bytes(
@@ -360,6 +366,7 @@ def _validate_bytes(
     expected_digest: str,
     world: WorldConfig,
     session: ort.InferenceSession | None,
+    trust: TrustedKeys | None = None,
 ) -> OnnxBrain:
     digest = brain_digest(data)
     if digest != expected_digest:
@@ -370,6 +377,11 @@ def _validate_bytes(
         raise BrainError(
             f"digest mismatch: bytes hash to {digest[:12]}, manifest says {manifest.brain_id[:12]}"
         )
+    if trust is not None:
+        try:
+            verify_manifest(manifest.to_dict(with_id=True), digest, trust)
+        except InputError as e:
+            raise BrainError(str(e)) from None
     if session is None:
         session = _new_session(data)
     brain = _validate_session(session, manifest, digest, world)
@@ -456,24 +468,32 @@ def read_brain_file(ref: str, *, sidecar: bool = True) -> BrainFile:
     return BrainFile(ref, data, manifest, manifest.brain_id, session)
 
 
-def open_brain(file: BrainFile, world: WorldConfig = DEFAULT_WORLD) -> Brain:
+def open_brain(
+    file: BrainFile, world: WorldConfig = DEFAULT_WORLD, trust: TrustedKeys | None = None
+) -> Brain:
     """The brain of a :class:`BrainFile`, validated and warmed (:func:`validate_brain_bytes`)."""
     if file.manifest is None:
         _known_rule(file.ref)
         return RuleBrain(world)  # RULES holds rule:assign alone
-    return _validate_bytes(file.data, file.manifest, file.brain_id, world, file.session)
+    return _validate_bytes(file.data, file.manifest, file.brain_id, world, file.session, trust)
 
 
-def load_brain(ref: str, world: WorldConfig = DEFAULT_WORLD) -> Brain:
+def load_brain(
+    ref: str, world: WorldConfig = DEFAULT_WORLD, trust: TrustedKeys | None = None
+) -> Brain:
     """``rule:assign`` or a path to a ``.onnx`` brain (sidecar manifest, else metadata).
 
-    Raises :class:`BrainError` with a one-line reason for anything unusable.
+    Raises :class:`BrainError` with a one-line reason for anything unusable
+    (with ``trust``: a brain not signed by one of its keys).
     """
-    return open_brain(read_brain_file(ref), world)
+    return open_brain(read_brain_file(ref), world, trust)
 
 
 def load_sent_brain(
-    manifest_json: str, onnx_bytes: bytes, world: WorldConfig = DEFAULT_WORLD
+    manifest_json: str,
+    onnx_bytes: bytes,
+    world: WorldConfig = DEFAULT_WORLD,
+    trust: TrustedKeys | None = None,
 ) -> Brain:
     """The brain a swap message carries, validated; :class:`BrainError` if unusable.
 
@@ -490,7 +510,7 @@ def load_sent_brain(
     manifest = BrainManifest.from_json(manifest_json)
     if not manifest.brain_id:
         raise BrainError("manifest has no brain_id (the sha256 of the ONNX bytes)")
-    return validate_brain_bytes(onnx_bytes, manifest, manifest.brain_id, world)
+    return validate_brain_bytes(onnx_bytes, manifest, manifest.brain_id, world, trust)
 
 
 def short_id(brain_id: str) -> str:

@@ -57,8 +57,11 @@ class BrainManifest:
     evaluation: dict[str, Any] = field(default_factory=dict)
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
+    signature: dict[str, str] | None = None
+    """ed25519 signature over the ONNX bytes and this manifest (:mod:`runtime.signing`)."""
 
     def to_dict(self, *, with_id: bool = True) -> dict[str, Any]:
+        """The manifest as JSON data; ``with_id=False`` leaves out brain_id and signature."""
         d: dict[str, Any] = {
             "format": self.format,
             "format_version": self.format_version,
@@ -75,6 +78,8 @@ class BrainManifest:
             training=dict(self.training),
             evaluation=dict(self.evaluation),
         )
+        if with_id and self.signature is not None:
+            d["signature"] = dict(self.signature)
         return d
 
     def to_json(self, *, with_id: bool = True, indent: int | None = 2) -> str:
@@ -134,6 +139,12 @@ class BrainManifest:
                 raise BrainError(f"manifest {key} must be an object")
             dicts[key] = v
         file = d.get("file", "")
+        signature = d.get("signature")
+        if signature is not None and not (
+            isinstance(signature, dict)
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in signature.items())
+        ):
+            raise BrainError("manifest signature must be an object of strings")
         return BrainManifest(
             observation=spec,
             action=dict(action),
@@ -144,6 +155,7 @@ class BrainManifest:
             world=dicts["world"],
             training=dicts["training"],
             evaluation=dicts["evaluation"],
+            signature=signature,
         )
 
     @staticmethod

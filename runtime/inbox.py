@@ -60,8 +60,10 @@ class PoseInbox:
         stale_s: float,
         log: Log,
         drop: Callable[[str, str], None],
+        on_restart: Callable[[], None] | None = None,
     ) -> None:
-        """``drop(what, why)`` counts a malformed pose."""
+        """``drop(what, why)`` counts a malformed pose; ``on_restart()`` runs (on the
+        loop's thread) when the world restarted."""
         self.id = robot_id
         self.swarm = swarm
         self.realtime = realtime
@@ -70,6 +72,7 @@ class PoseInbox:
         self.stale_s = stale_s
         self._log = log
         self._drop = drop
+        self._on_restart = on_restart
         self.cond = threading.Condition(threading.Lock())
         # written by callbacks, under cond
         self._poses: dict[int, tuple[Pose, float]] = {}  # robot -> (pose, monotonic s received)
@@ -141,6 +144,8 @@ class PoseInbox:
             if self._restart:
                 self._restart = False
                 self._last_decided = -1
+                if self._on_restart is not None:
+                    self._on_restart()
             step = None
             if not holding:
                 step = self._ready_realtime(now) if self.realtime else self._ready_lockstep(now)

@@ -14,8 +14,12 @@ payload starts with a 1-byte message tag and a 1-byte format version (:data:`VER
     Brain    <BB> + 3 x (<I> + bytes) + <I> + ids  request_id, manifest_json (utf-8),
                                                   onnx bytes, then n target ids as uint32
 
-Decoding anything malformed (wrong tag or version, truncated, trailing bytes, non-finite
-floats, absurd or negative lengths and counts, invalid utf-8, bad JSON) raises
+Every decoder bounds a message before it uses it: sizes first (a length or count field is
+checked against its documented maximum, ``MAX_*`` below, and against the bytes that are
+really there before anything is allocated), then values (finite floats; pattern points
+within ``MAX_PATTERN_COORD_M`` = 1e4 m of the origin). Decoding anything malformed (wrong
+tag or version, truncated, trailing bytes, non-finite or absurd floats, absurd or
+negative lengths and counts, invalid utf-8, bad JSON) raises
 :class:`MessageError` -- a ``ValueError`` with a one-line reason -- and nothing else.
 Encoding a message whose fields cannot be sent raises :class:`MessageError` as well, so
 what one side encodes the other side always decodes to an equal message.
@@ -33,6 +37,7 @@ from typing import Any, Final, TypeAlias
 import numpy as np
 import numpy.typing as npt
 
+from runtime.patterns import MAX_PATTERN_COORD_M
 from runtime.wire_codec import (
     HEADER,
     LEN32,
@@ -57,6 +62,7 @@ __all__ = [
     "MAX_BRAIN_ID_CHARS",
     "MAX_MANIFEST_BYTES",
     "MAX_ONNX_BYTES",
+    "MAX_PATTERN_COORD_M",
     "MAX_PATTERN_NAME_BYTES",
     "MAX_PATTERN_POINTS",
     "MAX_REQUEST_ID_BYTES",
@@ -90,7 +96,8 @@ __all__ = [
 
 MAX_BRAIN_ID_CHARS: Final = 64
 MAX_PATTERN_NAME_BYTES: Final = 1024
-MAX_PATTERN_POINTS: Final = 65_536
+MAX_PATTERN_POINTS: Final = 4096
+"""Points a pattern message may carry: 40x the largest team the design budgets (100)."""
 MAX_REQUEST_ID_BYTES: Final = 256
 MAX_MANIFEST_BYTES: Final = 1 << 20
 MAX_ONNX_BYTES: Final = 64 << 20
@@ -421,8 +428,7 @@ def encode_pattern(msg: PatternMsg) -> bytes:
     n = pts.shape[0]
     if n > MAX_PATTERN_POINTS:
         raise MessageError(f"pattern has {n} points, at most {MAX_PATTERN_POINTS}")
-    if not np.isfinite(pts).all():
-        raise MessageError("pattern.points must all be finite")
+    _check_points(pts)
     tol = finite(w, "formed_tol_m", msg.formed_tol_m)
     if tol < 0:
         raise MessageError(f"pattern.formed_tol_m must be >= 0, got {tol!r}")
@@ -455,9 +461,18 @@ def decode_pattern(payload: Buffer) -> PatternMsg:
     raw = r.take(16 * n, "points")
     r.finish()
     pts = np.frombuffer(raw, dtype="<f8").reshape(n, 2)
+    _check_points(pts)
+    return PatternMsg(version, name, pts, tol)
+
+
+def _check_points(pts: npt.NDArray[np.float64]) -> None:
     if not np.isfinite(pts).all():
         raise MessageError("pattern.points must all be finite")
-    return PatternMsg(version, name, pts, tol)
+    far = float(np.abs(pts).max(initial=0.0))
+    if far > MAX_PATTERN_COORD_M:
+        raise MessageError(
+            f"pattern.points reach {far:g} m from the origin, at most {MAX_PATTERN_COORD_M:g}"
+        )
 
 
 # -- Brain ----------------------------------------------------------------------------------

@@ -35,6 +35,11 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 Points = NDArray[np.float64]
 
+MAX_PATTERN_COORD_M = 1e4
+"""A pattern point farther than this from the origin (metres, either axis) is refused:
+the arena is tens of metres wide, and coordinates near the float range overflow
+distances into inf and NaN."""
+
 
 class PatternError(InputError):
     """A pattern that cannot be used; the message is one line."""
@@ -118,13 +123,32 @@ def resample_polyline(vertices: Points, n: int, closed: bool) -> Points:
 
 
 def min_spacing(points: Points) -> float:
-    """Smallest distance between two points of a pattern (inf for fewer than 2)."""
+    """Smallest distance between two points of a pattern (inf for fewer than 2; nan if any is).
+
+    Sort and sweep, O(n log n) time and O(n) memory on patterns (points >= 2R
+    apart): sort along the wider axis, then compare each point with its k-th
+    successor for k = 1, 2, ... while some pair k apart in that order is closer
+    along the axis than the best distance found. A distance matrix would take
+    O(n^2) memory (64 GiB for 65,536 points).
+    """
     p = np.asarray(points, dtype=np.float64)
-    if len(p) < 2:
+    n = len(p)
+    if n < 2:
         return math.inf
-    d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
-    d[np.diag_indices(len(p))] = np.inf
-    return float(d.min())
+    if not np.isfinite(p).all():
+        return math.nan  # never "far enough apart": every caller compares with >=
+    axis = int(np.argmax(np.ptp(p, axis=0)))
+    p = p[np.argsort(p[:, axis], kind="stable")]
+    key = p[:, axis]
+    best = math.inf
+    for k in range(1, n):
+        gap = key[k:] - key[:-k]
+        close = gap < best
+        if not close.any():
+            break
+        d = p[k:][close] - p[:-k][close]
+        best = min(best, float(np.sqrt(np.min(d[:, 0] ** 2 + d[:, 1] ** 2))))
+    return best
 
 
 def _builtin(name: str, n: int, world: WorldConfig) -> Points:
@@ -177,6 +201,11 @@ def _read_points_file(path: Path) -> tuple[Points, bool]:
         raise PatternError(f"pattern file {path}: points must be pairs of numbers [x, y]")
     if not np.isfinite(pts).all():
         raise PatternError(f"pattern file {path}: points must be finite numbers")
+    if np.abs(pts).max(initial=0.0) > MAX_PATTERN_COORD_M:
+        raise PatternError(
+            f"pattern file {path}: a coordinate is {np.abs(pts).max():g} m, "
+            f"at most {MAX_PATTERN_COORD_M:g} m"
+        )
     if len(pts) < 2:
         raise PatternError(f"pattern file {path}: needs at least 2 points, has {len(pts)}")
     if np.allclose(pts[0], pts[-1]) and len(pts) > 2:
@@ -209,7 +238,7 @@ def make_pattern(name_or_path: str | Path, n: int, world: WorldConfig = DEFAULT_
             pts = resample_polyline(raw, n, closed)
         pts = pts - pts.mean(axis=0)
     gap = min_spacing(pts)
-    if gap < world.min_separation_m:
+    if not gap >= world.min_separation_m:  # NaN too
         raise PatternError(
             f"pattern '{key}' for {n} robots puts two points {gap:.3f} m apart, "
             f"closer than 2R = {world.min_separation_m:.3f} m"

@@ -40,9 +40,14 @@ peers), :class:`runtime.team_pattern.TeamPattern` (which target),
 :class:`runtime.robot_status.RobotStats` (status figures), the options in
 :mod:`runtime.robot_cli`.
 
+Brains must be signed (:mod:`runtime.signing`) by a key the robot trusts: the
+project's release key, the user's own key and every ``--trust`` key; a brain
+file or swap without such a signature is refused (rule brains need none).
+
 Exit codes: 0 on SIGINT/SIGTERM or ``--exit-after-silence-s``; 2 on bad input
-(missing or invalid brain, bad pattern, bad options), with one line on stderr;
-1 on an unexpected failure.
+(missing, invalid or untrusted brain, bad pattern, bad options), with one line
+on stderr; 1 when the world is gone (``--world-timeout-s``) or on an
+unexpected failure.
 """
 
 from __future__ import annotations
@@ -121,6 +126,7 @@ class Robot:
             stale_s=cfg.stale_s,
             log=self.log,
             drop=self._drop,
+            on_restart=lambda: self.pattern.world_restarted(),
         )
         self.pattern = TeamPattern(cfg.pattern, world, self.log)
         self.pattern.use_brain(brain)
@@ -132,6 +138,7 @@ class Robot:
             team_size=lambda: len(self._team_ids),
             drop=self._drop,
             error=self.stats.error,
+            trust=cfg.trust,
         )
         self._stop = threading.Event()
         self._team_ids: list[int] = []  # the team of the last decision (loop thread)
@@ -191,8 +198,10 @@ class Robot:
     def _take_pattern(self, payload: bytes) -> None:
         try:
             self.pattern.offer(decode_pattern(payload))
-        except (MessageError, PatternError) as e:
+        except (MessageError, PatternError) as e:  # sizes, values, then meaning
             self._drop("pattern", str(e))
+        except Exception as e:  # whatever arrives, never a traceback on Zenoh's thread
+            self._drop("pattern", f"{type(e).__name__}: {e}")
 
     def _on_brain(self, sample: zenoh.Sample) -> None:
         self.swaps.offer(sample.payload.to_bytes())
@@ -211,8 +220,9 @@ class Robot:
                 self._publish_status()
                 self.stats.new_period()
                 next_status = now + period
-            if not self._watch(now):
-                return 0
+            code = self._watch(now)
+            if code is not None:
+                return code
             wake_by = min(next_status, now + IDLE_WAKE_S)
             step = self.inbox.next_step(now, wake_by, self._holding, self.swaps.busy)  # observe
             if step is None:
@@ -221,12 +231,12 @@ class Robot:
             self._send(step.step, decision)  # send
         return 0
 
-    def _watch(self, now: float) -> bool:
-        """The watchdog: hold still without poses, resume with them; False: exit on silence."""
+    def _watch(self, now: float) -> int | None:
+        """The watchdog: hold still without poses, resume with them; an exit code on silence."""
         cfg = self.cfg
         silent = self.inbox.silence_s(now)
         if silent is None:
-            return True
+            return None
         if silent > cfg.watchdog_s and not self._holding:
             self._hold_still(f"no pose for {silent:.1f} s, holding still")
         elif silent <= cfg.watchdog_s and self._holding:
@@ -234,8 +244,12 @@ class Robot:
             self.log("info", "resume", "poses are back")
         if cfg.exit_after_silence_s > 0 and silent > cfg.exit_after_silence_s:
             self.log("info", "exit", f"world silent for {silent:.1f} s")
-            return False
-        return True
+            return 0
+        if cfg.world_timeout_s > 0 and silent > cfg.world_timeout_s:
+            self.log("error", "exit", f"the world is gone: no pose for {silent:.1f} s "
+                     f"(--world-timeout-s {cfg.world_timeout_s:g}), exiting")
+            return 1
+        return None
 
     def _decide(self, step: Step) -> Decision:
         n = len(step.ids)
@@ -314,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
     log = Log(f"robot {args.id}", args.json_logs, "debug" if args.verbose else "info")
     try:
         cfg, safety = config_from_args(args, world)
-        brain = load_brain(args.brain, world)
+        brain = load_brain(args.brain, world, cfg.trust)
     except (InputError, BrainError) as e:
         print(f"patternrl robot: error: {one_line(str(e))}", file=sys.stderr)
         return 2

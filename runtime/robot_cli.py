@@ -10,6 +10,7 @@ from runtime import keys
 from runtime.errors import InputError
 from runtime.patterns import PatternError, make_pattern
 from runtime.safety import OrcaParams
+from runtime.signing import TrustedKeys, default_trust
 from runtime.world_config import WorldConfig
 from runtime.zenoh_session import add_zenoh_arguments
 
@@ -30,6 +31,9 @@ class RobotConfig:
     exit_after_silence_s: float = 0.0
     status_period_s: float = 1.0
     pattern: str | None = None
+    world_timeout_s: float = 30.0
+    trust: TrustedKeys | None = None
+    """Keys a brain must be signed by (None: unchecked, for embedding and tests)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -67,6 +71,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=0.0,
         help="exit (code 0) once the world has been silent this long (0: never)",
+    )
+    parser.add_argument(
+        "--world-timeout-s",
+        type=float,
+        default=30.0,
+        help="once the world was heard, exit (code 1, one line) when it is silent this long "
+        "(default 30; 0: never)",
+    )
+    parser.add_argument(
+        "--trust",
+        action="append",
+        default=[],
+        metavar="KEY.pub",
+        help="run brains signed by this public key, or by any *.pub of a directory "
+        "(repeatable); the release key and your own key are always trusted",
     )
     parser.add_argument("--status-period-s", type=float, default=1.0, help=argparse.SUPPRESS)
     g = parser.add_argument_group("safety filter (ORCA)")
@@ -135,6 +154,7 @@ def config_from_args(
     for name, v in (
         ("--lockstep-deadline-s", args.lockstep_deadline_s),
         ("--exit-after-silence-s", args.exit_after_silence_s),
+        ("--world-timeout-s", args.world_timeout_s),
         ("--orca-radius-margin-m", args.orca_radius_margin_m),
     ):
         if not (math.isfinite(v) and v >= 0):
@@ -170,5 +190,7 @@ def config_from_args(
         exit_after_silence_s=args.exit_after_silence_s,
         status_period_s=args.status_period_s,
         pattern=args.pattern,
+        world_timeout_s=args.world_timeout_s,
+        trust=default_trust(args.trust),
     )
     return cfg, safety

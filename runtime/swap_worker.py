@@ -3,8 +3,9 @@
 A :class:`runtime.messages.BrainMsg` arrives on a Zenoh thread
 (:meth:`SwapWorker.offer`: queued, at most :data:`SWAP_QUEUE` waiting). The
 worker thread decodes it, keeps it if it is addressed to this robot (or to
-all), and validates it (:func:`runtime.brain.load_sent_brain`: digest,
-onnxruntime load, input/output shapes, finite outputs on probes, warm-up; and
+all), and validates it (:func:`runtime.brain.load_sent_brain`: digest, a
+signature by a key the robot trusts (``trust``), onnxruntime load,
+input/output shapes, finite outputs on probes, warm-up; and
 the brain must accept the team size the robot sees now). The robot's loop,
 between two decisions, calls :meth:`SwapWorker.apply`: every validated brain
 is installed and every request gets a :class:`SwapReply` for the robot's
@@ -23,6 +24,7 @@ from typing import Final, NamedTuple
 from runtime.brain import Brain, BrainError, load_sent_brain, short_id
 from runtime.log import Log, one_line
 from runtime.messages import BrainMsg, MessageError, decode_brain
+from runtime.signing import TrustedKeys
 from runtime.world_config import WorldConfig
 
 __all__ = ["SWAP_QUEUE", "SwapReply", "SwapWorker"]
@@ -50,7 +52,8 @@ class SwapWorker:
     when a swap is ready, and :meth:`busy` must be called holding it.
     ``team_size`` gives the number of robots the robot decides for now (0 when
     none); ``drop(what, why)`` counts a malformed message, ``error(text)`` an
-    error of the worker itself.
+    error of the worker itself. ``trust``: the keys a brain must be signed by
+    (None: no signature check, for tools and tests that build brains in place).
     """
 
     def __init__(
@@ -62,8 +65,10 @@ class SwapWorker:
         team_size: Callable[[], int],
         drop: Callable[[str, str], None],
         error: Callable[[str], None],
+        trust: TrustedKeys | None = None,
     ) -> None:
         self.robot_id = robot_id
+        self.trust = trust
         self.world = world
         self._log = log
         self._wake = wake
@@ -130,7 +135,7 @@ class SwapWorker:
 
     def _validate(self, msg: BrainMsg) -> tuple[Brain | None, str]:
         try:
-            brain = load_sent_brain(msg.manifest_json, msg.onnx_bytes, self.world)
+            brain = load_sent_brain(msg.manifest_json, msg.onnx_bytes, self.world, self.trust)
             n = self._team_size()
             if n and not brain.spec.accepts_team(n):
                 raise BrainError(f"brain observes {brain.spec.n_robots} robots, the team has {n}")

@@ -15,12 +15,31 @@ Which pattern a robot fits (:class:`TeamPattern`): a paper brain trained for
 one pattern forms that pattern whatever the swarm's key says (it knows no
 other); any other brain forms the newest pattern message of the swarm, else
 the robot's ``--pattern`` default.
+
+Which pattern message is the newest (the version rule): the world numbers its
+patterns 1, 2, 3, ... (one per phase and per resize). A robot takes
+
+- its first message if its version is at most :data:`MAX_PATTERN_VERSION` (2^32 - 1);
+- later, only a version greater than the one it holds by at most
+  :data:`MAX_VERSION_STEP`; the same version again is the world's republish and
+  changes nothing; an older one is refused;
+- after the world restarted (its own pose's step went back), any version up to
+  :data:`MAX_PATTERN_VERSION` again.
+
+So a message cannot jump to the end of the version range and lock the target
+for the rest of a run (the robots would ignore every later pattern of the
+world). A message is also refused when no team could form it: fewer than 2
+points, two points closer than 2R, or points that cannot be fitted to the team
+the robot sees now. Every refusal is a :class:`PatternError` the robot counts
+as a dropped message. What the version rule cannot stop is a peer that sends
+the next version first: only authenticated transport (who may publish on the
+pattern key) stops that.
 """
 
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
@@ -40,7 +59,12 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 if TYPE_CHECKING:
     from runtime.brain import Brain
 
-__all__ = ["TeamPattern", "fit_pattern"]
+__all__ = ["MAX_PATTERN_VERSION", "MAX_VERSION_STEP", "TeamPattern", "fit_pattern"]
+
+MAX_PATTERN_VERSION: Final = (1 << 32) - 1
+"""The highest pattern version a robot takes: 4 billion phases and resizes."""
+MAX_VERSION_STEP: Final = 1000
+"""How far a new pattern version may be ahead of the one a robot holds."""
 
 
 def fit_pattern(name: str, points: Array, n: int, world: WorldConfig = DEFAULT_WORLD) -> Array:
@@ -57,7 +81,7 @@ def fit_pattern(name: str, points: Array, n: int, world: WorldConfig = DEFAULT_W
         out = resample_polyline(pts, n, closed=False)
     else:
         raise PatternError(f"pattern '{name}' has {len(pts)} points, the team has {n}")
-    if n >= 2 and min_spacing(out) < world.min_separation_m:
+    if n >= 2 and not min_spacing(out) >= world.min_separation_m:  # NaN too
         raise PatternError(f"pattern '{name}' for {n} robots puts two points closer than 2R")
     return out
 
@@ -80,6 +104,8 @@ class TeamPattern:
         self._msg: PatternMsg | None = None
         self._lock = threading.Lock()
         self._cache: tuple[object, int, Array | None, str] | None = None
+        self._team_n = 0  # the team of the last for_team: a new message must fit it
+        self._restarted = False
 
     def _say(self, level: str, msg: str) -> None:
         if self._log is not None:
@@ -97,19 +123,45 @@ class TeamPattern:
                 self._say("warning", f"brain's own pattern unusable: {e}")
 
     def offer(self, msg: PatternMsg) -> None:
-        """A pattern message from the swarm: kept unless a newer version is held.
+        """A pattern message from the swarm: taken by the version rule (module docstring).
 
-        Raises :class:`PatternError` for a message no team could form (fewer
-        than 2 points, or points closer than 2R).
+        Raises :class:`PatternError` with the reason for a message refused: a
+        version out of bounds, fewer than 2 points, points closer than 2R, or
+        points that cannot be fitted to the team seen now.
         """
-        if len(msg.points) < 2 or min_spacing(msg.points) < self.world.min_separation_m:
-            raise PatternError(f"'{msg.name}' has fewer than 2 points or points closer than 2R")
         with self._lock:
-            if self._msg is None or msg.version >= self._msg.version:
+            held = self._msg
+            fresh = held is None or self._restarted
+        v = msg.version
+        if v > MAX_PATTERN_VERSION:
+            raise PatternError(f"pattern version {v} beyond {MAX_PATTERN_VERSION}")
+        if not fresh and held is not None:
+            if v == held.version:
+                return  # the world's republish
+            if v < held.version:
+                raise PatternError(f"pattern version {v} is older than the held {held.version}")
+            if v > held.version + MAX_VERSION_STEP:
+                raise PatternError(
+                    f"pattern version {v} jumps more than {MAX_VERSION_STEP} past {held.version}"
+                )
+        if len(msg.points) < 2 or not min_spacing(msg.points) >= self.world.min_separation_m:
+            raise PatternError(f"'{msg.name}' has fewer than 2 points or points closer than 2R")
+        n = self._team_n
+        if n >= 2:  # a pattern the team cannot form would hold every robot still
+            fit_pattern(msg.name, np.asarray(msg.points, np.float64), n, self.world)
+        with self._lock:
+            if self._msg is held:
                 self._msg = msg
+                self._restarted = False
+
+    def world_restarted(self) -> None:
+        """The world started again: its pattern versions count from 1 again."""
+        with self._lock:
+            self._restarted = True
 
     def for_team(self, n: int) -> tuple[Array | None, str]:
         """The (n, 2) target in metres for a team of ``n``, or (None, why there is none)."""
+        self._team_n = n
         if self._fixed is not None:
             src: object = self._fixed
         else:

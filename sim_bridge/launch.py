@@ -55,6 +55,7 @@ from typing import IO, Any
 
 from runtime.errors import InputError
 from runtime.patterns import pattern_label
+from runtime.signing import run_operator_key
 from runtime.zenoh_session import (
     ZenohSetupError,
     add_zenoh_arguments,
@@ -127,6 +128,8 @@ class Robots:
                    "--zenoh-port", str(port), "--safety", args.safety,
                    "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
             cmd += ["--insecure"] if keys_dir is None else ["--tls-dir", str(keys_dir)]
+            for key in getattr(args, "trust", []):  # the run's operator key
+                cmd += ["--trust", key]
             if args.mode == "realtime":
                 cmd += ["--rate-hz", str(args.rate_hz)]
             else:  # a robot waits for every pose of a step about as long as the world waits
@@ -273,6 +276,11 @@ def run(args: argparse.Namespace) -> int:
     record: Path = args.record or Path("runs") / "demo.mcap"
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
+    try:  # a per-run operator key the robots trust: sign a brain with it to swap it in
+        args.trust = [f"{run_operator_key(record.with_suffix('.keys'))}.pub"]
+    except InputError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
     # the swarm's own port when free, so `patternrl swap --swarm S` finds the run unaided
     port = args.zenoh_port or free_port(world_port(swarm))
     out, err = sys.stdout, sys.stderr

@@ -13,8 +13,13 @@ Zenoh's threads; what they share with the world's thread sits under one
 * each robot's brain id, from its commands, statuses and accepted swaps;
 * every sample under the swarm is written to the log as it came (``recorder``).
 
-A sample that does not decode is dropped and counted (``malformed`` events, the
-first 100), never a crash.
+A sample that does not decode, or whose robot id disagrees with its key, is
+dropped and counted (``malformed`` events, the first 100), never a crash.
+
+``lockstep`` waits only for robots that speak: a robot from which no command
+came in the last :data:`SILENT_STEPS` exchanges (a phantom that never answers,
+a robot stuck) is not waited for; it holds still each step (counted as a
+deadline miss) and is waited for again as soon as any command of it arrives.
 """
 
 from __future__ import annotations
@@ -44,6 +49,8 @@ MALFORMED_EVENTS = 100
 """Malformed samples logged one by one; enough to diagnose, the count goes on."""
 REALTIME_STALE_STEPS = 2
 """``realtime``: a robot's latest command older than this many steps is not used."""
+SILENT_STEPS = 3
+"""``lockstep``: a robot silent this many exchanges in a row is no longer waited for."""
 
 
 class WorldLink:
@@ -77,6 +84,8 @@ class WorldLink:
         self._cmd_t: dict[int, float] = {}
         self._latest: dict[int, Command] = {}
         self._brain_of: dict[int, str] = {}
+        self._exchanges = 0  # exchanges begun
+        self._spoke_at: dict[int, int] = {}  # robot -> exchange of its last command (or join)
         # --- the world's thread
         self._stack: ExitStack | None = None
         self._pattern_pub: zenoh.Publisher | None = None
@@ -163,6 +172,10 @@ class WorldLink:
             except MessageError as e:
                 self._malformed(key, str(e))
                 return
+            if st.robot_id != k.robot_id:
+                self._malformed(key, f"robot_id {st.robot_id} on key {key}")
+                return
+            self.roster.heard(k.robot_id)
             with self.cond:
                 self._brain_of[st.robot_id] = st.brain_id
 
@@ -181,7 +194,9 @@ class WorldLink:
         if rid != cmd.robot_id:
             self._malformed(key, f"robot_id {cmd.robot_id} on key {key}")
             return
+        self.roster.heard(rid)
         with self.cond:
+            self._spoke_at[rid] = self._exchanges
             self._brain_of[rid] = cmd.brain_id
             self._latest[rid] = cmd
             if cmd.step == self._collect_step and rid in self._expect:
@@ -228,6 +243,8 @@ class WorldLink:
         self._pose_pubs[rid] = self.session.declare_publisher(
             keys.pose_key(self.swarm, rid), express=False)
         self._prev_pos[rid] = (x, y)
+        with self.cond:  # a robot that joins is waited for, until it proves silent
+            self._spoke_at[rid] = self._exchanges
 
     def remove_robot(self, rid: int) -> None:
         pub = self._pose_pubs.pop(rid, None)
@@ -277,8 +294,11 @@ class WorldLink:
         this step moves by its latest, if not stale.
         """
         with self.cond:
+            self._exchanges += 1
             self._collect_step = step
-            self._expect = set(ids)
+            n = self._exchanges
+            self._expect = {r for r in ids
+                            if n - self._spoke_at.get(r, -SILENT_STEPS) <= SILENT_STEPS}
             self._cmds = {}
             self._cmd_t = {}
         t0 = time.monotonic()

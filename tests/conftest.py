@@ -14,3 +14,13 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+# Brains written by tests are signed by a key of the test run, never the user's own
+# (robots started by tests inherit it and trust it as their user's key).
+if "PATTERNRL_HOME" not in os.environ:
+    import tempfile
+
+    os.environ["PATTERNRL_HOME"] = tempfile.mkdtemp(prefix="patternrl-home-")
+    from runtime.signing import user_key
+
+    user_key(create=True)  # before any robot starts: robots read the keys they trust once

@@ -26,6 +26,7 @@ from pathlib import Path
 from runtime.brain import BrainError, BrainManifest, load_brain
 from runtime.errors import InputError
 from runtime.patterns import PatternError
+from runtime.signing import load_private_key, user_key
 from runtime.world_config import DEFAULT_WORLD
 from trainer.checkpoints import InitError, load_checkpoint
 from trainer.config import (
@@ -80,6 +81,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", help="continue an interrupted run from its .ckpt.pt")
     p.add_argument("--envs", type=int, help=f"worlds side by side (default {d.n_envs})")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument(
+        "--sign-key",
+        type=Path,
+        default=None,
+        help="sign the brain with this private key (default: your own, "
+        "$PATTERNRL_HOME/brain-key or ~/.config/patternrl/brain-key, made on first use)",
+    )
     tune = p.add_argument_group("tuning")
     tune.add_argument(
         "--paper-lrs", action="store_true", help="the paper's learning rates (1e-4, 2e-4)"
@@ -230,6 +238,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail("--out is required: the brain to write (.onnx)")
     if args.out.suffix != ".onnx":
         return _fail(f"--out must name an .onnx file, got {args.out}")
+    try:  # a key that cannot sign fails now, not after the training
+        load_private_key(args.sign_key if args.sign_key is not None else user_key() or "")
+    except InputError as e:
+        return _fail(str(e))
     for flag, path in (("--init", args.init), ("--resume", args.resume)):
         if path and not Path(path).is_file():
             return _fail(f"cannot read {flag} {path}: no such file")
@@ -297,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
             "rollouts": result.rollouts,
         },
     )
-    write_brain(result.agent, args.out, manifest)
+    write_brain(result.agent, args.out, manifest, args.sign_key)
     if args.final_eval_episodes > 0:
         brain = load_brain(str(args.out))
         ev = evaluate_brain(
@@ -310,7 +322,7 @@ def run(args: argparse.Namespace) -> int:
             label=args.out.stem,
         )
         manifest.evaluation = ev.manifest_block()
-        write_brain(result.agent, args.out, manifest)
+        write_brain(result.agent, args.out, manifest, args.sign_key)
 
     files = {k: str(v) for k, v in artefact_paths(args.out).items()}
     summary = {

@@ -44,6 +44,7 @@ from runtime.brain import (
     sidecar_path,
 )
 from runtime.errors import InputError
+from runtime.signing import load_private_key, sign_manifest, user_key
 from trainer.config import TrainConfig
 from trainer.networks import NORM_CLIP, Agent
 
@@ -133,21 +134,28 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
     return model
 
 
-def write_brain(agent: Agent, path: str | Path, manifest: BrainManifest) -> BrainManifest:
+def write_brain(
+    agent: Agent, path: str | Path, manifest: BrainManifest, sign_key: str | Path | None = None
+) -> BrainManifest:
     """Write ``path`` (.onnx) and its sidecar ``<stem>.json``; return the manifest with its id.
 
     The ONNX metadata gets the manifest without ``brain_id`` (the digest of the
-    very bytes it sits in); the sidecar gets it with.
+    very bytes it sits in) and without signature; the sidecar gets both. The
+    signature is by ``sign_key`` (a private key file), by default the user's own
+    key (:func:`runtime.signing.user_key`, made on first use).
     """
     out = Path(path)
     manifest.file = out.name
     manifest.brain_id = ""
+    manifest.signature = None
     body = manifest.to_json(with_id=False, indent=None)
     model = build_onnx(agent, {METADATA_KEY: body})
     data = model.SerializeToString()
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(data)
     manifest.brain_id = brain_digest(data)
+    key = load_private_key(sign_key if sign_key is not None else user_key(create=True) or "")
+    manifest.signature = sign_manifest(manifest.to_dict(), manifest.brain_id, key)
     sidecar_path(out).write_text(manifest.to_json(with_id=True) + "\n")
     return manifest
 

@@ -246,7 +246,7 @@ class FakeRobot:
 
 
 def write_test_brain(directory: Path, name: str, obs: str = "general", pattern: str | None = None,
-                     n_robots: int | None = None, seed: int = 0) -> Path:
+                     n_robots: int | None = None, seed: int = 0, sign: bool = True) -> Path:
     """A small random linear brain ``<name>.onnx`` + ``<name>.json``, as an export writes them.
 
     It passes the runtime's validation (shapes, finite outputs) but forms nothing: for
@@ -278,6 +278,11 @@ def write_test_brain(directory: Path, name: str, obs: str = "general", pattern: 
     path = directory / f"{name}.onnx"
     path.write_bytes(data)
     manifest.brain_id = hashlib.sha256(data).hexdigest()
+    if sign:  # by the test run's own key (PATTERNRL_HOME), which its robots trust
+        from runtime.signing import load_private_key, sign_manifest, user_key
+
+        key = load_private_key(user_key() or "")
+        manifest.signature = sign_manifest(manifest.to_dict(), manifest.brain_id, key)
     path.with_suffix(".json").write_text(manifest.to_json())
     return path
 

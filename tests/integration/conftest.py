@@ -283,12 +283,15 @@ def write_test_brain(
     seed: int = 0,
     hidden: tuple[int, ...] = (32, 32),
     gain: float = 0.5,
+    sign_key: Path | bool | None = True,
 ) -> Path:
     """A general-observation MLP brain ``<name>.onnx`` with its sidecar manifest.
 
     ``in_dim`` other than the spec's dim gives a wrong-shape brain, ``nan`` a brain
     whose every output is NaN, ``corrupt`` truncated bytes, ``wrong_digest`` a
-    manifest naming other bytes.
+    manifest naming other bytes. Signed by the test run's own key (``True``,
+    which robots started by the tests trust), by the private key ``sign_key``,
+    or not at all (``False``).
     """
     import hashlib
 
@@ -343,6 +346,11 @@ def write_test_brain(
     path = tmp / f"{name}.onnx"
     path.write_bytes(data)
     manifest.brain_id = hashlib.sha256(data).hexdigest()
+    if sign_key is not False:
+        from runtime.signing import load_private_key, sign_manifest, user_key
+
+        key = load_private_key(user_key() or "" if sign_key is True else sign_key)
+        manifest.signature = sign_manifest(manifest.to_dict(), manifest.brain_id, key)
     if wrong_digest:
         manifest.brain_id = hashlib.sha256(data + b"other").hexdigest()
     path.with_suffix(".json").write_text(manifest.to_json())

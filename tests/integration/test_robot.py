@@ -217,6 +217,9 @@ class Stepper(threading.Thread):
         assert self.error is None, self.error
 
 
+from runtime.signing import generate_key  # noqa: E402
+
+
 def run_swap_cli(world: StubWorld, brain: str, *extra: str) -> subprocess.CompletedProcess[str]:
     cmd = [
         sys.executable,
@@ -247,6 +250,11 @@ def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
         "corrupt": (write_test_brain(tmp_path, "corrupt", corrupt=True), "cannot load"),
         "nan": (write_test_brain(tmp_path, "nan", nan=True), "non-finite"),
         "digest": (write_test_brain(tmp_path, "digest", wrong_digest=True), "digest mismatch"),
+        "unsigned": (write_test_brain(tmp_path, "unsigned", sign_key=False), "not signed"),
+        "untrusted": (
+            write_test_brain(tmp_path, "untrusted", sign_key=generate_key(tmp_path / "other")),
+            "untrusted key",
+        ),
     }
     stepper = Stepper(world, spread(n, seed=5, side=1.5))
     stepper.start()
@@ -441,3 +449,18 @@ def test_world_port_is_derived_from_the_swarm(monkeypatch: pytest.MonkeyPatch) -
     assert session_endpoints("robot", "demo") == ([f"tcp/127.0.0.1:{p}"], ["tcp/127.0.0.1:0"])
     monkeypatch.setenv(PORT_ENV, "12345")
     assert world_endpoint("demo") == "tcp/127.0.0.1:12345"
+
+
+def test_a_robot_started_by_hand_leaves_when_its_world_is_gone(
+    world: StubWorld, robots: list[RobotProc]
+) -> None:
+    robots.append(RobotProc(world, 0, RULE_ASSIGN, "--pattern", "line", "--world-timeout-s", "1"))
+    world.wait_alive({0}, 30.0)
+    world.publish_poses(0, np.array([[0.0, 0.0], [1.0, 0.0]]), [0, 1])
+    world.wait_cmds(0, [0], 10.0)
+    # the world says no more: the robot holds still, then exits with one line
+    code, _, err = robots[0].finish(timeout=30.0)
+    assert code == 1, err
+    lines = [ln for ln in err.splitlines() if "world is gone" in ln]
+    assert len(lines) == 1 and "--world-timeout-s 1" in lines[0]
+    assert "Traceback" not in err

@@ -557,3 +557,24 @@ def test_keys_are_valid_zenoh_key_expressions() -> None:
         assert str(zenoh.KeyExpr(k)) == k
     assert zenoh.KeyExpr(keys.all_poses("s")).intersects(zenoh.KeyExpr(keys.pose_key("s", 7)))
     assert zenoh.KeyExpr(keys.swarm_root("s")).includes(zenoh.KeyExpr(keys.status_key("s", 7)))
+
+
+def test_pattern_messages_are_bounded_before_use() -> None:
+    import struct
+
+    from runtime.messages import MAX_PATTERN_POINTS, Tag, decode_pattern
+
+    def raw(n_claimed: int, pts: np.ndarray) -> bytes:
+        head = struct.pack("<BBQdHI", Tag.PATTERN, 1, 1, 0.025, 0, n_claimed)
+        return head + np.asarray(pts, "<f8").tobytes()
+
+    ok = np.array([[0.0, 0.0], [1.0, 0.0]])
+    assert decode_pattern(raw(2, ok)).points.shape == (2, 2)
+    with pytest.raises(MessageError, match="at most"):  # the count, before any allocation
+        decode_pattern(raw(MAX_PATTERN_POINTS + 1, np.zeros((MAX_PATTERN_POINTS + 1, 2))))
+    with pytest.raises(MessageError, match="truncated"):  # a count the bytes do not hold
+        decode_pattern(raw(MAX_PATTERN_POINTS, ok))
+    with pytest.raises(MessageError, match="from the origin"):
+        decode_pattern(raw(2, np.array([[1e308, 0.0], [0.0, 0.0]])))
+    with pytest.raises(MessageError, match="from the origin"):
+        m.encode_pattern(PatternMsg(1, "far", np.array([[2e4, 0.0], [0.0, 0.0]]), 0.025))

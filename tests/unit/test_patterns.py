@@ -141,3 +141,28 @@ def test_random_patterns_are_valid_and_seeded() -> None:
         assert p.shape == (n, 2)
         assert min_spacing(p) == pytest.approx(DEFAULT_WORLD.pattern_spacing_m)
         assert np.ptp(p, axis=0).max() <= 1.1 * (n - 1) * DEFAULT_WORLD.pattern_spacing_m + 1e-9
+
+
+def test_a_pattern_file_with_an_absurd_coordinate_is_refused_with_one_line(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from runtime.patterns import MAX_PATTERN_COORD_M
+
+    f = tmp_path / "far.csv"
+    f.write_text("0,0\n1e300,0\n0,1\n")
+    with pytest.raises(PatternError, match="at most") as e:
+        make_pattern(str(f), 10)
+    assert "\n" not in str(e.value) and f"{MAX_PATTERN_COORD_M:g}" in str(e.value)
+
+
+def test_min_spacing_sweeps_like_the_distance_matrix_in_linear_memory() -> None:
+    rng = np.random.default_rng(7)
+    for n in (2, 3, 17, 300):
+        for _ in range(20):
+            p = rng.uniform(-5, 5, (n, 2))
+            if n > 3:
+                p[rng.integers(n)] = p[0]  # a duplicate: distance 0
+            d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+            d[np.diag_indices(n)] = np.inf
+            assert min_spacing(p) == pytest.approx(d.min(), abs=1e-12)
+    line = np.stack([np.zeros(65_536), np.arange(65_536) * 0.5], axis=1)  # 64 GiB as a matrix
+    assert min_spacing(line) == pytest.approx(0.5)
+    assert np.isnan(min_spacing(np.array([[0.0, 0.0], [np.nan, 1.0]])))

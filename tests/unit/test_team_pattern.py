@@ -10,7 +10,7 @@ import pytest
 from runtime.brain import RuleBrain, load_brain
 from runtime.messages import PatternMsg
 from runtime.patterns import PatternError, make_pattern
-from runtime.team_pattern import TeamPattern, fit_pattern
+from runtime.team_pattern import MAX_VERSION_STEP, TeamPattern, fit_pattern
 
 EXPORTS = Path(__file__).resolve().parents[2] / "exports"
 
@@ -42,7 +42,8 @@ def test_default_then_newest_message_cached_per_team_size() -> None:
     assert a is b  # cached for the same message and team size
     assert a is not None
     np.testing.assert_allclose(a, make_pattern("circle", 5))
-    policy.offer(msg(1, "cross", make_pattern("cross", 4)))  # older: ignored
+    with pytest.raises(PatternError, match="older"):  # refused, counted by the robot
+        policy.offer(msg(1, "cross", make_pattern("cross", 4)))
     c, _ = policy.for_team(5)
     assert c is a
     with pytest.raises(PatternError, match="fewer than 2 points"):
@@ -72,3 +73,35 @@ def test_a_paper_brain_forms_its_own_pattern_only() -> None:
     pts, _ = policy.for_team(10)
     assert pts is not None
     np.testing.assert_allclose(pts, make_pattern("circle", 10))
+
+
+def test_a_version_cannot_jump_to_the_end_of_its_range() -> None:
+    policy = TeamPattern(None)
+    with pytest.raises(PatternError, match="beyond"):
+        policy.offer(msg(2**64 - 1, "cross", make_pattern("cross", 4)))
+    policy.offer(msg(3, "circle", make_pattern("circle", 4)))
+    for bad, why in ((2**64 - 1, "beyond"), (3 + MAX_VERSION_STEP + 1, "jumps"), (2, "older")):
+        with pytest.raises(PatternError, match=why):
+            policy.offer(msg(bad, "cross", make_pattern("cross", 4)))
+    policy.offer(msg(3, "cross", make_pattern("cross", 4)))  # a republish changes nothing
+    pts, _ = policy.for_team(4)
+    np.testing.assert_allclose(pts, make_pattern("circle", 4))
+    policy.offer(msg(3 + MAX_VERSION_STEP, "line", make_pattern("line", 4)))
+    np.testing.assert_allclose(policy.for_team(4)[0], make_pattern("line", 4))
+    policy.world_restarted()  # versions count from 1 again
+    policy.offer(msg(1, "cross", make_pattern("cross", 4)))
+    np.testing.assert_allclose(policy.for_team(4)[0], make_pattern("cross", 4))
+    with pytest.raises(PatternError, match="older"):
+        policy.offer(msg(0, "circle", make_pattern("circle", 4)))
+
+
+def test_a_message_the_team_cannot_form_is_refused_and_the_old_one_kept() -> None:
+    policy = TeamPattern(None)
+    policy.offer(msg(1, "circle", make_pattern("circle", 6)))
+    assert policy.for_team(6)[0] is not None
+    two = np.array([[0.0, 0.0], [0.25, 0.0]])  # fine for 2 robots, too short for 6
+    with pytest.raises(PatternError, match="closer than 2R"):
+        policy.offer(msg(2, "two", two))
+    with pytest.raises(PatternError, match="closer than 2R"):
+        policy.offer(msg(2, "two", np.array([[0.0, 0.0], [0.1, 0.0]])))
+    np.testing.assert_allclose(policy.for_team(6)[0], make_pattern("circle", 6))
