@@ -65,7 +65,7 @@ class WorldLog:
         if self.rec is None:
             return
         step = self._clock()
-        now_ns = time.time_ns()
+        now_ns = self.rec.log_time(step)
         self.rec.metrics({
             "step": step, "time_s": round(step * self.w.dt_s, 6), "phase": phase,
             "pattern": pattern, "pattern_version": version,
