@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("sim_bridge.sim", "play the pymunk world over Zenoh, recording an MCAP log"),
     "launch": ("sim_bridge.launch", "start a world and one robot process per robot: the demo"),
     "replay": ("sim_bridge.replay", "report, draw, play back or re-run an MCAP log"),
+    "record": ("sim_bridge.record", "record a running swarm (simulated or real) into an MCAP log"),
 }
 
 

@@ -53,9 +53,10 @@ from runtime.errors import InputError
 from runtime.patterns import pattern_label
 from runtime.zenoh_session import ZenohSetupError, open_session, world_port
 from sim_bridge.brain_choice import BrainChoice, pick_brains
-from sim_bridge.recorder import Recorder
+from sim_bridge.foxglove_live import FoxgloveLive, parse_address
+from sim_bridge.recorder import Recorder, check_output
 from sim_bridge.run_results import PhaseResult, Progress, RunResult, result_dict
-from sim_bridge.sim import add_world_arguments, config_from_args
+from sim_bridge.sim import add_world_arguments, config_from_args, start_live
 from sim_bridge.sim_world import SimWorld
 from sim_bridge.world_log import Say
 
@@ -252,10 +253,19 @@ def run(args: argparse.Namespace) -> int:
     try:
         brains, brains_line = pick_brains(args.brains, patterns, args.robots, args.brain_kind)
         cfg = config_from_args(args, brains)
+        if args.record is not None:  # the default demo log is the demo's own to overwrite
+            check_output(args.record, args.force)
+        if args.foxglove is not None:
+            parse_address(args.foxglove)
     except InputError as e:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
     record: Path = args.record or Path("runs") / "demo.mcap"
+    try:
+        check_output(record, True)
+    except InputError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
     # the swarm's own port when free, so `patternrl swap --swarm S` finds the run unaided
@@ -275,7 +285,16 @@ def run(args: argparse.Namespace) -> int:
     except ZenohSetupError as e:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
-    rec = Recorder(record)
+    live: FoxgloveLive | None = None
+    try:
+        live = start_live(args.foxglove, say)
+        rec = Recorder(record, live=live)
+    except InputError as e:
+        if live is not None:
+            live.close()
+        session.close()  # type: ignore[no-untyped-call]
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
     world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
     robots = Robots()
     interrupted = threading.Event()
@@ -311,6 +330,8 @@ def run(args: argparse.Namespace) -> int:
         progress.clear()
         robots.stop()
         rec.close()
+        if live is not None:
+            live.close()
         session.close()  # type: ignore[no-untyped-call]
         for s, h in old.items():
             signal.signal(s, h)

@@ -204,7 +204,8 @@ class SimWorld:
                 contacts_total=self.physics.contacts_total)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
-                         str(self.rec.path) if self.rec else None, self.latencies_ms)
+                         str(self.rec.path) if self.rec and self.rec.path else None,
+                         self.latencies_ms)
 
     def _play(self, phases: list[PhaseResult]) -> str:
         """Place the robots and play the patterns in turn; the outcome."""
