@@ -388,6 +388,12 @@ class Recorder:
             self._tf_step, self._tf_time = s, t
         self._tf[rid] = (robot_frame(rid), x, y)
 
+    def end_step(self) -> None:
+        """The step is complete: write its ``/tf`` now rather than at the next step's first pose."""
+        with self._lock:
+            if not self._closed:
+                self._write_tf()
+
     def _write_tf(self) -> None:
         """The pending step's ``/tf`` (caller holds the lock)."""
         if self._tf:

@@ -81,4 +81,5 @@ class WorldLog:
         robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]
         self.rec.scene(scene_update(now_ns, robots, targets, self._removed_since_scene,
                                     self.arena_m, self.w), now_ns)
+        self.rec.end_step()
         self._removed_since_scene = []

@@ -25,7 +25,9 @@ from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
 from patternrl.cli import main as cli
+from sim_bridge import log_schemas as pb
 from sim_bridge.foxglove_client import FoxgloveClient
+from sim_bridge.log_file import iter_messages
 from sim_bridge.log_report import report_log
 
 pytestmark = pytest.mark.timeout(180)
@@ -122,6 +124,11 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
             _stop(p)
         _stop(sim, signal.SIGKILL)
     result = json.loads(out.strip().splitlines()[-1])
+    # lockstep: the world's log runs on simulated time, start + step x dt
+    offsets = {lt - pb.parse(pb.ROBOT_POSE, data).step * 100_000_000
+               for ch, lt, _pt, _seq, data in iter_messages(world_log)
+               if ch.schema_name == pb.ROBOT_POSE}
+    assert len(offsets) == 1
     ours, theirs = report_log(world_log), report_log(outside_log)
     assert theirs.finished and ours.finished
     assert theirs.robots == ours.robots == [0, 1, 2]
@@ -151,3 +158,12 @@ def test_sim_record_refuses_an_existing_file_or_a_directory(
     assert len(err) == 1 and ("exists; pass --force" in err[0] or "is a directory" in err[0])
     if case == "exists":
         assert target.read_bytes() == b"keep me"
+
+
+@pytest.mark.parametrize("address", ["nope:xx", "127.0.0.1:70000"])
+def test_a_bad_foxglove_address_is_one_line_and_exit_2(
+        address: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli(["sim", "--foxglove", address, "--swarm", "x", "--zenoh-port",
+                str(free_port())]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--foxglove" in err[0]
