@@ -16,7 +16,9 @@ What it does:
    to it, each with the first pattern's brain; at every pattern change the world
    swaps in the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
-   MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
+   MCAP log (``--record``, refused if it exists unless ``--force``; without it
+   ``runs/demo.mcap``, the demo's own log, overwritten each run), serving it live
+   to Foxglove with ``--foxglove`` (:mod:`sim_bridge.foxglove_live`) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
    terminal; the robots' own log lines go to ``<log stem>.robots.log``;
 4. stops every robot by its PID (SIGTERM, then SIGKILL after a grace period),

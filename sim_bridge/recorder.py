@@ -378,7 +378,7 @@ class Recorder:
 
     def _pose_views(self, rid: int, payload: bytes, step: int | None, t: int) -> None:
         """The pose as Foxglove sees robots: a ``PoseInFrame`` now, a transform in the step's
-        ``/tf`` message (written when the next step's first pose comes, or on flush)."""
+        ``/tf`` message (written at :meth:`end_step`, the next step's first pose, or a flush)."""
         x, y = _xy(payload)
         self._add(self._pb_channel(robot_pose_topic(rid), pb.POSE_IN_FRAME),
                   pb.pose_in_frame_pb(t, SCENE_FRAME, x, y), t)
