@@ -26,7 +26,12 @@ Rows, each the median of ``--repeats`` runs over the same file:
 ``x mcap`` is each row's speed over mcap's reader in the same run: the figure to
 compare across machines and load (the issue quotes that reader at 248 k/s).
 
-Usage: ``python benchmarks/replay_speed.py [--steps 10000] [--robots 20] [--json]``
+The log is in today's layout (protobuf: per pose also a Foxglove ``PoseInFrame``,
+per step a ``/tf``), or with ``--layout wire`` in the layout of old logs, so the
+two readers compare side by side.
+
+Usage: ``python benchmarks/replay_speed.py [--steps 10000] [--robots 20] [--layout protobuf|wire]
+[--json]``
 """
 
 from __future__ import annotations
@@ -67,15 +72,19 @@ PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 GOAL_MSGS_PER_S = 100_000.0
 
 
-def write_log(path: Path, steps: int, n: int, phase_steps: int, seed: int = 0) -> int:
-    """A synthetic run through the recorder API; returns the number of messages."""
+def write_log(path: Path, steps: int, n: int, phase_steps: int, seed: int = 0,
+              layout: str = "protobuf") -> int:
+    """A synthetic run through the recorder API; returns the number of messages.
+
+    ``layout`` "wire" writes the layout of old logs (payloads as ``patternrl-wire``).
+    """
     w = DEFAULT_WORLD
     rng = np.random.default_rng(seed)
     swarm = "bench"
     t0 = 1_700_000_000_000_000_000
     dt_ns = int(w.dt_s * 1e9)
     pos = rng.uniform(1.0, 9.0, (n, 2))
-    with Recorder(path, flush_period_s=1e9) as rec:
+    with Recorder(path, flush_period_s=1e9, wire_layout=layout == "wire") as rec:
         rec.event("run_start", 0, 0.0, swarm=swarm, robots=n, patterns=list(PATTERNS),
                   mode="lockstep", seed=seed, world=asdict(w))
         for rid in range(n):
@@ -128,7 +137,7 @@ def write_log(path: Path, steps: int, n: int, phase_steps: int, seed: int = 0) -
                 rid, step, step * w.dt_s, float(pos[rid, 0]), float(pos[rid, 1]), 0.0, 0.0, n)),
                 t0 + step * dt_ns + rid)
         rec.event("run_end", step, step * w.dt_s, outcome="done", steps=step)
-        return rec.messages_written
+    return rec.messages_written  # after close: the last step's /tf is written then
 
 
 @dataclass(frozen=True)
@@ -160,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="where to write the log (default: a temporary file, removed after)")
     ap.add_argument("--reuse", action="store_true",
                     help="with --log: read that file if it exists instead of writing it again")
+    ap.add_argument("--layout", choices=("protobuf", "wire"), default="protobuf",
+                    help="today's layout, or the old one (patternrl-wire payloads)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     args = ap.parse_args(argv)
 
@@ -169,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.reuse and path.is_file():
             total = sum(1 for _ in iter_messages(path))
         else:
-            total = write_log(path, args.steps, args.robots, args.phase_steps)
+            total = write_log(path, args.steps, args.robots, args.phase_steps,
+                              layout=args.layout)
         write_s = time.perf_counter() - t
 
         def mcap_only() -> None:

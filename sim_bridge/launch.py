@@ -20,7 +20,9 @@ What it does:
    with the first pattern's brain; at every pattern change the world swaps in
    the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
-   MCAP log (``--record``, default ``runs/demo.mcap``) and showing a
+   MCAP log (``--record``, refused if it exists unless ``--force``; without it
+   ``runs/demo.mcap``, the demo's own log, overwritten each run), serving it live
+   to Foxglove with ``--foxglove`` (:mod:`sim_bridge.foxglove_live`) and showing a
    progress line (pattern, step, formation error, robots alive) when stdout is a
    terminal; the robots' own log lines go to ``<log stem>.robots.log``;
 4. stops every robot by its PID (SIGTERM, then SIGKILL after a grace period),
@@ -64,10 +66,11 @@ from runtime.zenoh_session import (
     world_port,
 )
 from sim_bridge.brain_choice import BrainChoice, pick_brains
+from sim_bridge.foxglove_live import FoxgloveLive, parse_address
 from sim_bridge.launch_keys import RunKeys, run_keys
-from sim_bridge.recorder import Recorder
+from sim_bridge.recorder import Recorder, check_output
 from sim_bridge.run_results import PhaseResult, Progress, RunResult, result_dict
-from sim_bridge.sim import add_world_arguments
+from sim_bridge.sim import add_world_arguments, start_live
 from sim_bridge.sim import config_from_args as world_config_from_args
 from sim_bridge.sim_world import SimWorld
 from sim_bridge.world_log import Say
@@ -270,10 +273,19 @@ def run(args: argparse.Namespace) -> int:
     try:
         brains, brains_line = pick_brains(args.brains, patterns, args.robots, args.brain_kind)
         cfg = world_config_from_args(args, brains)
+        if args.record is not None:  # the default demo log is the demo's own to overwrite
+            check_output(args.record, args.force)
+        if args.foxglove is not None:
+            parse_address(args.foxglove)
     except InputError as e:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
     record: Path = args.record or Path("runs") / "demo.mcap"
+    try:
+        check_output(record, True)
+    except InputError as e:
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
     record.parent.mkdir(parents=True, exist_ok=True)
     robots_log = record.with_suffix(".robots.log")
     try:  # a per-run operator key the robots trust: sign a brain with it to swap it in
@@ -305,7 +317,16 @@ def run(args: argparse.Namespace) -> int:
         creds.close()
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
-    rec = Recorder(record)
+    live: FoxgloveLive | None = None
+    try:
+        live = start_live(args.foxglove, say)
+        rec = Recorder(record, live=live)
+    except InputError as e:
+        if live is not None:
+            live.close()
+        session.close()  # type: ignore[no-untyped-call]
+        print(f"patternrl launch: error: {e}", file=sys.stderr)
+        return 2
     world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
     robots = Robots()
     interrupted = threading.Event()
@@ -341,6 +362,8 @@ def run(args: argparse.Namespace) -> int:
         progress.clear()
         robots.stop()
         rec.close()
+        if live is not None:
+            live.close()
         session.close()  # type: ignore[no-untyped-call]
         creds.close()
         for s, h in old.items():

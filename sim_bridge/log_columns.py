@@ -1,6 +1,9 @@
 """Recorded poses and commands as columns: a batch of wire payloads decoded at once.
 
-The payloads are viewed with the numpy layouts of :mod:`runtime.messages`
+The payloads of today's logs (protobuf ``patternrl.RobotPose`` / ``RobotCommand``)
+are viewed with the fixed layouts of :mod:`sim_bridge.log_schemas`; a payload in
+another layout (another writer) is parsed by protobuf, one by one. Those of old
+logs (``patternrl-wire``) are viewed with the numpy layouts of :mod:`runtime.messages`
 (:data:`~runtime.messages.POSE_DTYPE`, :func:`~runtime.messages.command_dtype`),
 which are derived from the very struct formats the robots and the world encode
 with. A payload that does not decode (wrong size, tag or version, a non-finite
@@ -18,6 +21,7 @@ from numpy.typing import NDArray
 
 from runtime.messages import COMMAND_HEAD_DTYPE, POSE_DTYPE, VERSION, Tag, command_dtype
 from runtime.types import Array, BoolArray, IntArray
+from sim_bridge import log_schemas as pb
 
 
 @dataclass
@@ -48,6 +52,24 @@ class Commands:
             name = self.brain_ids[int(codes[k])]
             out[name] = out.get(name, 0) + int(counts[k])
         return out
+
+    def select(self, sel: BoolArray) -> Commands:
+        """The commands where ``sel`` (m,) holds."""
+        return Commands(self.robot_id[sel], self.step[sel], self.v[sel], self.safety_changed[sel],
+                        self.brain_index[sel], self.brain_ids)
+
+    def concat(self, other: Commands) -> Commands:
+        """These commands, then ``other``'s (file order is the caller's: see ``order``)."""
+        if not len(other.step):
+            return self
+        if not len(self.step):
+            return other
+        return Commands(
+            np.concatenate([self.robot_id, other.robot_id]),
+            np.concatenate([self.step, other.step]), np.concatenate([self.v, other.v]),
+            np.concatenate([self.safety_changed, other.safety_changed]),
+            np.concatenate([self.brain_index, other.brain_index + len(self.brain_ids)]),
+            self.brain_ids + other.brain_ids)
 
     @staticmethod
     def empty() -> Commands:
@@ -117,8 +139,12 @@ def decode_poses(raw: list[bytes], idx: list[int], key_rid: list[int]
     return rec[good], np.asarray(idx, np.int64)[good], bad
 
 
-def decode_commands(raw: list[bytes], key_rid: list[int]) -> tuple[Commands, int]:
-    """Command payloads as :class:`Commands`, in the order given; (commands, malformed)."""
+def decode_commands(raw: list[bytes], key_rid: list[int], idx: list[int] | None = None
+                    ) -> tuple[Commands, int]:
+    """Command payloads as :class:`Commands`, in the order given; (commands, malformed).
+
+    ``idx`` (message indices) is accepted for symmetry with :func:`decode_commands_pb`.
+    """
     lengths = list(map(len, raw))
     by_len: dict[int, list[int]] = {}
     if len(set(lengths)) == 1:  # the usual case: one brain id length for the whole run
@@ -182,3 +208,128 @@ def frames_of(rec: NDArray[Any], idx: IntArray) -> Frames:
     first = np.full(len(steps), np.iinfo(np.int64).max, np.int64)
     np.minimum.at(first, srow, idx)
     return Frames(steps, ids, xy, present, first)
+
+
+# -- today's layout (protobuf) -----------------------------------------------------------
+
+
+def _fixed(raw: list[bytes], size: int) -> tuple[list[int], list[int]]:
+    """Positions of the payloads of ``size`` bytes, and of the others."""
+    if not (set(map(len, raw)) - {size}):
+        return list(range(len(raw))), []
+    ok = [k for k, b in enumerate(raw) if len(b) == size]
+    okset = set(ok)
+    return ok, [k for k in range(len(raw)) if k not in okset]
+
+
+def _tags_ok(rec: NDArray[Any], tags: dict[str, int]) -> BoolArray:
+    good = np.ones(len(rec), bool)
+    for name, t in tags.items():
+        good &= rec[name] == t
+    return good
+
+
+def _parse_each(name: str, raw: list[bytes], ks: list[int]) -> tuple[list[Any], list[int], int]:
+    """Parse the payloads ``ks`` one by one: (messages, their positions, how many failed)."""
+    out, pos, bad = [], [], 0
+    for k in ks:
+        try:
+            out.append(pb.parse(name, raw[k]))
+            pos.append(k)
+        except ValueError:
+            bad += 1
+    return out, pos, bad
+
+
+def decode_poses_pb(raw: list[bytes], idx: list[int], key_rid: list[int]
+                    ) -> tuple[NDArray[Any], IntArray, int]:
+    """``patternrl.RobotPose`` payloads as :data:`runtime.messages.POSE_DTYPE` records.
+
+    Same contract as :func:`decode_poses`: (good records, their message indices, malformed).
+    """
+    if not raw:
+        return np.zeros(0, POSE_DTYPE), np.zeros(0, np.int64), 0
+    ok, other = _fixed(raw, pb.POSE_PB_DTYPE.itemsize)
+    rec = np.frombuffer(b"".join(raw) if not other else b"".join(raw[k] for k in ok),
+                        dtype=pb.POSE_PB_DTYPE)
+    fixed = _tags_ok(rec, pb.POSE_PB_TAGS)
+    if not fixed.all():
+        other += [ok[k] for k in np.flatnonzero(~fixed).tolist()]
+        ok = [ok[k] for k in np.flatnonzero(fixed).tolist()]
+        rec = rec[fixed]
+    msgs, pos, bad = _parse_each(pb.ROBOT_POSE, raw, other)
+    out = np.zeros(len(ok) + len(msgs), POSE_DTYPE)
+    out["tag"], out["version"] = Tag.POSE, VERSION
+    for f in ("robot_id", "step", "time_s", "x", "y", "vx", "vy", "n_live"):
+        out[f][: len(ok)] = rec[f]
+        out[f][len(ok):] = [getattr(m, f) for m in msgs]
+    order = ok + pos
+    rid = np.asarray(key_rid, np.int64)[order]
+    good = (np.isfinite(out["x"]) & np.isfinite(out["y"]) & np.isfinite(out["time_s"])
+            & np.isfinite(out["vx"]) & np.isfinite(out["vy"])
+            & (out["robot_id"].astype(np.int64) == rid))
+    bad += int((~good).sum())
+    sort = np.argsort(np.asarray(idx, np.int64)[order][good], kind="stable")
+    return out[good][sort], np.asarray(idx, np.int64)[order][good][sort], bad
+
+
+def decode_commands_pb(raw: list[bytes], key_rid: list[int], idx: list[int]
+                       ) -> tuple[Commands, int]:
+    """``patternrl.RobotCommand`` payloads as :class:`Commands`, in message order."""
+    if not raw:
+        return Commands.empty(), 0
+    head = pb.command_pb_dtype(0).itemsize
+    by_len: dict[int, list[int]] = {}
+    lengths = list(map(len, raw))
+    if len(set(lengths)) == 1:
+        by_len[lengths[0]] = list(range(len(raw)))
+    else:
+        for k, n in enumerate(lengths):
+            by_len.setdefault(n, []).append(k)
+    cols: list[tuple[IntArray, IntArray, Array, BoolArray, IntArray, IntArray]] = []
+    brain_ids: list[str] = []
+    other: list[int] = []
+    bad = 0
+    for length, ks in by_len.items():
+        blen = length - head
+        if not 0 <= blen <= pb.MAX_FIXED_BRAIN_BYTES:
+            other += ks
+            continue
+        joined = b"".join(raw) if len(ks) == len(raw) else b"".join([raw[k] for k in ks])
+        rec = np.frombuffer(joined, dtype=pb.command_pb_dtype(blen))
+        fixed = _tags_ok(rec, pb.COMMAND_PB_TAGS) & (rec["brain_len"] == blen) & (
+            rec["safety_changed"] <= 1)
+        other += [ks[k] for k in np.flatnonzero(~fixed).tolist()]
+        rec = rec[fixed]
+        ks_ok = np.asarray(ks, np.int64)[fixed]
+        if blen:
+            names, inv = np.unique(rec["brain"], return_inverse=True)
+            index = inv.astype(np.int64).reshape(-1) + len(brain_ids)
+            brain_ids += [bytes(b).decode("utf-8", "replace") for b in names]
+        else:
+            index = np.full(len(rec), len(brain_ids), np.int64)
+            brain_ids.append("")
+        cols.append((rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
+                     np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64).reshape(-1, 2),
+                     rec["safety_changed"].astype(bool), index, ks_ok))
+    msgs, pos, bad = _parse_each(pb.ROBOT_COMMAND, raw, other)
+    if msgs:
+        index = np.arange(len(msgs), dtype=np.int64) + len(brain_ids)
+        brain_ids += [str(m.brain_id) for m in msgs]
+        cols.append((np.asarray([m.robot_id for m in msgs], np.int64),
+                     np.asarray([m.step for m in msgs], np.uint64).astype(np.int64),
+                     np.asarray([(m.vx, m.vy) for m in msgs], np.float64).reshape(-1, 2),
+                     np.asarray([m.safety_changed for m in msgs], bool),
+                     index, np.asarray(pos, np.int64)))
+    if not cols:
+        return Commands.empty(), bad
+    pos_all = np.concatenate([c[5] for c in cols])
+    rid = np.concatenate([c[0] for c in cols])
+    v = np.concatenate([c[2] for c in cols])
+    good = (rid == np.asarray(key_rid, np.int64)[pos_all]) & np.isfinite(v).all(axis=1)
+    bad += int((~good).sum())
+    order = np.argsort(np.asarray(idx, np.int64)[pos_all][good], kind="stable")
+    sel = np.flatnonzero(good)[order]
+    return Commands(rid[sel], np.concatenate([c[1] for c in cols])[sel], v[sel],
+                    np.concatenate([c[3] for c in cols])[sel],
+                    np.concatenate([c[4] for c in cols])[sel], brain_ids), bad

@@ -65,11 +65,17 @@ class Recovery:
 
     ``finished``: the writer wrote its footer (a complete, indexed log).
     ``bytes_read``: where the last whole record read ends; the rest of the file
-    (``file_bytes - bytes_read``) was an incomplete record, lost.
+    (``file_bytes - bytes_read``) was an incomplete record, lost. ``corrupted``:
+    some of the file is damaged rather than missing (a writer never leaves that).
     """
 
     messages: int = 0
     chunks: int = 0
+    corrupted: bool = False
+    """bytes in the middle of the log do not read (a chunk's CRC, a broken record), as
+    opposed to a log merely cut short at its end"""
+    corrupt_chunks: int = 0
+    """chunks skipped for bad CRC or data (the records after them were still read)"""
     bytes_read: int = 0
     file_bytes: int = 0
     finished: bool = False
@@ -198,16 +204,21 @@ def blocks(path: str | Path, rec: Recovery) -> Iterator[bytes]:
     rec.file_bytes = n
     pos = len(MAGIC)
     rec.bytes_read = pos
+    # A file that ends with the magic was finished by its writer: any record that
+    # does not read before the footer is damage, not a cut.
+    ends_finished = n > 2 * len(MAGIC) and data[n - len(MAGIC):] == MAGIC
     while True:
         if pos + 9 > n:
             rec.error = ("the file ends without a footer: the writer did not finish"
                          if pos == n else f"incomplete record header at byte {pos}")
+            rec.corrupted = rec.corrupted or ends_finished
             break
         op, length = RECORD.unpack_from(data, pos)
         s = pos + 9
         end = s + length
         if end > n:
             rec.error = f"incomplete record (opcode {op}) at byte {pos}: {end - n} bytes missing"
+            rec.corrupted = rec.corrupted or ends_finished
             break
         out: bytes | None = None
         try:
@@ -236,15 +247,21 @@ def blocks(path: str | Path, rec: Recovery) -> Iterator[bytes]:
                 rec.library, _ = _string(data, q)
         except (ValueError, struct.error, UnicodeDecodeError) as e:
             rec.error = f"unreadable record (opcode {op}) at byte {pos}: {e}"[:200]
-            break
+            rec.corrupted = True
+            if op != OP_CHUNK:
+                break
+            rec.corrupt_chunks += 1  # its framing holds: skip it, read on
+            out = None
         except Exception as e:  # a decompressor's own error types
             rec.error = f"unreadable chunk at byte {pos}: {type(e).__name__}: {e}"[:200]
-            break
+            rec.corrupted = True
+            rec.corrupt_chunks += 1
+            out = None
         pos = end
         rec.bytes_read = end
         if out is not None:
             yield out
-    if rec.bytes_read <= len(MAGIC) and not rec.profile and rec.error:
+    if rec.bytes_read <= len(MAGIC) and not rec.profile and rec.error and not rec.corrupted:
         raise LogError(f"{p}: not a readable MCAP log ({rec.error})")
 
 

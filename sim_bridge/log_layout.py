@@ -1,28 +1,48 @@
 """The layout of a run's MCAP log: topics, encodings, schemas. Writer and reader both use it.
 
-Channel layout (``log_time`` = wall clock, ns since the Unix epoch;
-``K`` = ``patternrl/<swarm>``):
+Every channel has a standard message encoding and a real schema, so any MCAP tool
+decodes every message without this project (``mcap_protobuf.decoder`` for the
+protobuf channels, ``json`` for the others). ``K`` = ``patternrl/<swarm>``:
 
-=========================  ===================  ===========================  ==============
-topic                      message encoding     schema (schema encoding)     what
-=========================  ===================  ===========================  ==============
-``K/robot/<id>/pose``      ``patternrl-wire``   ``patternrl.Pose``           world -> robot
-``K/robot/<id>/cmd``       ``patternrl-wire``   ``patternrl.Command``        robot -> world
-``K/robot/<id>/status``    ``patternrl-wire``   ``patternrl.Status``         robot health
-``K/pattern``              ``patternrl-wire``   ``patternrl.Pattern``        target pattern
-``K/brain``                ``patternrl-wire``   ``patternrl.Brain``          brain swaps
-other keys under ``K``     ``patternrl-wire``   none (schema id 0)           raw bytes
-``/world/events``          ``json``             ``patternrl.Event``          see below
-``/world/metrics``         ``json``             ``patternrl.StepMetrics``    one per step
-``/world/scene``           ``json``             ``foxglove.SceneUpdate``     one per step
-=========================  ===================  ===========================  ==============
+==========================  ===============================  ==========================
+topic                       schema                           what
+==========================  ===============================  ==========================
+``K/robot/<id>/pose``       ``patternrl.RobotPose``          world -> robot
+``K/robot/<id>/cmd``        ``patternrl.RobotCommand``       robot -> world
+``K/robot/<id>/status``     ``patternrl.RobotStatus``        robot health
+``K/pattern``               ``patternrl.Pattern``            target pattern
+``K/brain``                 ``patternrl.BrainSwap``          brain swaps
+``/robot/<id>/pose``        ``foxglove.PoseInFrame``         frame ``world``
+``/tf``                     ``foxglove.FrameTransforms``     ``world`` -> ``robot_<id>``
+``/log/other``              ``patternrl.RawSample``          see below
+``/world/events``           ``patternrl.Event``              JSON, see below
+``/world/metrics``          ``patternrl.StepMetrics``        JSON, one per step
+``/world/scene``            ``foxglove.SceneUpdate``         JSON, one per step
+==========================  ===============================  ==========================
 
-Wire schemas have schema encoding ``patternrl-wire``; the JSON ones ``jsonschema``.
-Wire channels hold the Zenoh payloads byte for byte, as :mod:`runtime.messages`
-encodes them (``patternrl-wire``: a tag byte, a version byte, little-endian
-``struct`` fields; the schema record's data is that module's layout description).
-One channel per key, so a robot's poses are one topic. Keys are taken apart with
-:func:`runtime.keys.parse_key`, here and nowhere else in the log code.
+Protobuf channels have message and schema encoding ``protobuf``; JSON ones
+message encoding ``json`` and schema encoding ``jsonschema``.
+
+The protobuf schemas are :mod:`sim_bridge.log_schemas`'s (a ``FileDescriptorSet``
+per schema record). The ``K/...`` channels hold every field of the Zenoh message
+on that key (:mod:`runtime.messages`), one channel per key; play-back turns them
+back into the wire payloads. ``/tf`` holds one message per recorded step with a
+transform per robot; ``/robot/<id>/pose`` the same position as a ``PoseInFrame``
+(Foxglove's Plot panel: ``/robot/3/pose.pose.position.x``). ``/log/other`` holds
+what is not one of the project's messages: a sample on a foreign key (whole), a
+payload that did not decode (``reason``, its first bytes) and a payload refused
+for its size (``reason``, no bytes; see :data:`MAX_PAYLOAD_BYTES`).
+
+Time: ``publish_time`` is always the wall clock (ns since the Unix epoch). In
+lockstep the world's log has ``log_time`` = simulated time, start + step x dt (the
+wall clock at the run's start, plus the step of the message: a pose's, a command's,
+a status's own step, the world's current step for the rest), so a log plays in
+Foxglove at the speed the swarm moved; otherwise (realtime, ``patternrl record``)
+``log_time`` is the wall clock too.
+
+Old logs (written before this layout) hold the Zenoh payloads byte for byte in
+channels of message encoding ``patternrl-wire``; the reader tells the two apart
+per channel (:func:`channel_kind`) and reads both.
 
 ``/world/events`` (one JSON object each, ``kind`` plus ``step`` and ``time_s``):
 ``run_start`` (configuration), ``pattern`` (a pattern published: version, name,
@@ -32,7 +52,8 @@ deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
 ``leave``, ``collision`` (robot pairs that overlapped during the step),
 ``contact`` (pairs the physics saw start touching, walls included),
 ``deadline_miss`` (robots that had not answered step ``for_step`` in time), ``malformed``
-(a payload that did not decode), ``run_end`` (outcome).
+(a payload that did not decode), ``payload_refused`` (key and bytes of a payload over
+the size limit, not written), ``run_end`` (outcome).
 
 ``/world/scene``: one ``foxglove.SceneUpdate`` per step, frame ``world``: an
 entity per robot (entity id = the robot id, a cylinder of diameter 2R at its
@@ -52,9 +73,11 @@ from typing import Any, Final
 
 from runtime import keys
 from runtime import messages as wire
+from sim_bridge import log_schemas as pb
 
 WIRE_ENCODING: Final = "patternrl-wire"
-"""Message (and schema) encoding of the wire channels."""
+"""Message (and schema) encoding of the wire channels of old logs."""
+PROTOBUF_ENCODING: Final = pb.PROTOBUF
 JSON_ENCODING: Final = "json"
 JSON_SCHEMA_ENCODING: Final = "jsonschema"
 
@@ -62,6 +85,35 @@ EVENTS_TOPIC: Final = "/world/events"
 METRICS_TOPIC: Final = "/world/metrics"
 SCENE_TOPIC: Final = "/world/scene"
 SCENE_FRAME: Final = "world"
+TF_TOPIC: Final = "/tf"
+OTHER_TOPIC: Final = "/log/other"
+
+
+def robot_pose_topic(robot_id: int) -> str:
+    """The ``foxglove.PoseInFrame`` topic of one robot."""
+    return f"/robot/{int(robot_id)}/pose"
+
+
+def robot_frame(robot_id: int) -> str:
+    """The frame of one robot in ``/tf`` (child of :data:`SCENE_FRAME`)."""
+    return f"robot_{int(robot_id)}"
+
+
+MAX_PAYLOAD_BYTES: Final = 1 << 20
+"""The largest payload the recorder writes (1 MiB), brains aside: a larger one is
+not written, an event ``payload_refused`` (key, bytes) says so."""
+MAX_BRAIN_PAYLOAD_BYTES: Final = (wire.MAX_ONNX_BYTES + wire.MAX_MANIFEST_BYTES
+                                  + wire.MAX_TARGET_ROBOTS * 4 + (1 << 16))
+"""The largest brain payload written: the largest brain the wire accepts."""
+
+PB_SCHEMAS: Final = {
+    keys.POSE: pb.ROBOT_POSE,
+    keys.CMD: pb.ROBOT_COMMAND,
+    keys.STATUS: pb.ROBOT_STATUS,
+    keys.PATTERN: pb.PATTERN,
+    keys.BRAIN: pb.BRAIN_SWAP,
+}
+"""Key kind -> protobuf schema of the channel of keys of that kind."""
 
 WIRE_SCHEMAS: Final = {
     keys.POSE: "patternrl.Pose",
@@ -70,7 +122,7 @@ WIRE_SCHEMAS: Final = {
     keys.PATTERN: "patternrl.Pattern",
     keys.BRAIN: "patternrl.Brain",
 }
-"""Key kind -> schema name of the wire message on keys of that kind."""
+"""Key kind -> schema name of the wire message on keys of that kind (old logs)."""
 
 WIRE_SCHEMA_DATA: Final = (wire.__doc__ or "").encode()
 """The data of every wire schema record: the wire module's layout description."""
@@ -80,6 +132,24 @@ def wire_schema(key: str) -> str | None:
     """Schema name of the wire channel of ``key``; None for a key that is not ours (raw bytes)."""
     k = keys.parse_key(key)
     return None if k is None else WIRE_SCHEMAS.get(k.kind)
+
+
+def channel_kind(topic: str, message_encoding: str, schema_name: str) -> tuple[str, int, bool]:
+    """What a channel carries: (key kind or "", robot id on its key or -1, old wire format).
+
+    A channel of one of the project's keys counts when it is in the old wire format
+    or in protobuf with the schema of its kind (another writer's channel on such a
+    key, in another schema, is ""); JSON topics and foreign keys are "".
+    """
+    if message_encoding == WIRE_ENCODING:
+        kind, rid = wire_kind(topic, message_encoding)
+        return kind, rid, True
+    if message_encoding != PROTOBUF_ENCODING:
+        return "", -1, False
+    k = keys.parse_key(topic)
+    if k is None or PB_SCHEMAS.get(k.kind) != schema_name:
+        return "", -1, False
+    return k.kind, -1 if k.robot_id is None else k.robot_id, False
 
 
 def wire_kind(topic: str, message_encoding: str) -> tuple[str, int]:
@@ -102,7 +172,8 @@ EVENT_SCHEMA: Final[dict[str, Any]] = {
     "type": "object",
     "properties": {
         "kind": {"type": "string", "description": "run_start, pattern, phase_start, phase_end, "
-                 "brain_swap, join, leave, collision, contact, deadline_miss, malformed, run_end"},
+                 "brain_swap, join, leave, collision, contact, deadline_miss, malformed, "
+                 "payload_refused, run_end"},
         "step": {"type": "integer", "description": "world step when it happened"},
         "time_s": {"type": "number", "description": "simulated time, step * dt (s)"},
     },

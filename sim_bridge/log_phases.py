@@ -23,7 +23,7 @@ import numpy as np
 
 from runtime.types import Array, IntArray
 from runtime.world_config import WorldConfig
-from sim_bridge.log_reader import LogData
+from sim_bridge.log_reader import LogData, as_int
 
 
 @dataclass
@@ -67,11 +67,14 @@ def _from_events(events: list[dict[str, Any]], world: WorldConfig) -> list[Phase
     pending_swaps: list[dict[str, Any]] = []
     for e in events:
         kind = e.get("kind")
-        step = int(e.get("step", 0))
+        step = as_int(e.get("step"))
         if kind == "pattern":
-            pts = np.asarray(e.get("points", []), dtype=np.float64).reshape(-1, 2)
-            pat = PhasePattern(step, pts, float(e.get("formed_tol_m", world.formed_tol_m)),
-                               int(e.get("version", 0)))
+            try:
+                pts = np.asarray(e.get("points", []), dtype=np.float64).reshape(-1, 2)
+                tol = float(e.get("formed_tol_m", world.formed_tol_m))
+            except (TypeError, ValueError):  # another writer's event: not a pattern we can use
+                continue
+            pat = PhasePattern(step, pts, tol, as_int(e.get("version")))
             if e.get("reason", "phase") == "phase" or cur is None:
                 cur = PhaseLog(len(phases), str(e.get("name", "?")), step, [pat])
                 cur.swaps, pending_swaps = pending_swaps, []
@@ -82,14 +85,15 @@ def _from_events(events: list[dict[str, Any]], world: WorldConfig) -> list[Phase
             cur.world_start = e
         elif kind == "phase_end" and cur is not None:
             cur.world_end = e
-            cur.end_step = int(e.get("end_step", step))
+            cur.end_step = as_int(e.get("end_step"), step)
             cur = None
         elif kind == "brain_swap":
             (cur.swaps if cur is not None else pending_swaps).append(e)
         elif cur is not None and kind in ("join", "leave"):
-            (cur.joined if kind == "join" else cur.lost).append(int(e.get("robot", -1)))
+            (cur.joined if kind == "join" else cur.lost).append(as_int(e.get("robot"), -1))
         elif cur is not None and kind == "deadline_miss":
-            cur.deadline_misses += len(e.get("robots", []))
+            robots = e.get("robots", [])
+            cur.deadline_misses += len(robots) if isinstance(robots, list) else 0
     return phases
 
 

@@ -57,7 +57,7 @@ from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import WorldConfig
 from sim_bridge.log_file import Recovery
 from sim_bridge.log_phases import PhaseLog, PhasePattern, phases_of
-from sim_bridge.log_reader import LogData, read_log
+from sim_bridge.log_reader import LogData, as_int, read_log
 
 _BATCH_ROWS: Final = 128
 """Steps measured in one batch: keeps the (rows, n, n, 2) temporaries of the geometry small
@@ -149,6 +149,8 @@ class RunReport:
     series: list[StepSeries]
     world: WorldConfig
     phase_patterns: list[list[PhasePattern]] = field(default_factory=list)
+    skipped: dict[str, int] = field(default_factory=dict)
+    """what the reader skipped as no part of the run -> how many"""
     """Each phase's patterns (its first and its resizes), for pictures; not in the JSON."""
     timing: dict[str, float] = field(default_factory=dict)
     """Seconds spent on the phases: ``phases_s`` in all, ``lower_bounds_s`` of it (not in JSON)."""
@@ -180,7 +182,7 @@ class RunReport:
             "first_step": self.first_step, "last_step": self.last_step,
             "wall_s": round(self.wall_s, 3), "robots": self.robots, "mode": self.mode,
             "outcome": self.outcome, "malformed": self.malformed, "topics": self.topics,
-            "world": asdict(self.world), "phases": phases,
+            "skipped": self.skipped, "world": asdict(self.world), "phases": phases,
         }
 
 
@@ -360,7 +362,7 @@ def analyse(data: LogData) -> RunReport:
         elif k + 1 < len(phases):
             end, complete = phases[k + 1].start_step, True
         else:
-            end = int(run_end[0].get("steps", last_step or 0)) if run_end else (last_step or 0)
+            end = as_int(run_end[0].get("steps"), last_step or 0) if run_end else (last_step or 0)
             complete = bool(run_end)
         rep, ser = _phase_report(data, ph, max(end, ph.start_step), complete, timing)
         reports.append(rep)
@@ -371,13 +373,16 @@ def analyse(data: LogData) -> RunReport:
         outcome = str(run_end[0].get("outcome", "?"))
     else:
         outcome = "cut short" if not data.recovery.finished else "no run_end"
-    world_malformed = int(run_end[0].get("malformed", 0)) if run_end else len(
+    world_malformed = as_int(run_end[0].get("malformed")) if run_end else len(
         data.events_of("malformed"))
+    wall = run_end[0].get("wall_s") if run_end else None
+    wall_s = (float(wall) if isinstance(wall, (int, float)) and math.isfinite(wall)
+              else (data.last_log_ns - data.first_log_ns) / 1e9)
     return RunReport(
         path=data.path, recovery=data.recovery, finished=data.recovery.finished,
         messages=data.recovery.messages, steps_recorded=S,
         first_step=int(fr.steps[0]) if S else None, last_step=last_step,
-        wall_s=(data.last_log_ns - data.first_log_ns) / 1e9, robots=[int(i) for i in fr.ids],
+        wall_s=wall_s, robots=[int(i) for i in fr.ids], skipped=data.skipped,
         mode=mode, outcome=outcome, malformed=data.malformed + world_malformed,
         topics=data.topics, phases=reports,
         series=series, world=data.world, phase_patterns=[ph.patterns for ph in phases],

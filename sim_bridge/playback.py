@@ -1,12 +1,14 @@
 """Play a log back onto Zenoh: every recorded wire message, on its key, with its timing.
 
-What ``ros2 bag play`` does for a bag, for this project's MCAP logs. The wire
-channels (message encoding ``patternrl-wire``: poses, commands, statuses,
-patterns, brains, any other key the world recorded) hold the Zenoh payloads byte
-for byte, so play-back puts exactly those bytes on exactly those keys, in file
+What ``ros2 bag play`` does for a bag, for this project's MCAP logs. The channels
+of the project's keys (poses, commands, statuses, patterns, brains) hold every
+field of the Zenoh messages (protobuf; :mod:`sim_bridge.log_schemas`), so
+play-back encodes each one back into its wire payload (old logs, ``patternrl-wire``,
+hold the payloads byte for byte, foreign keys included) and puts it on its key, in file
 order, each at its recorded ``log_time`` relative to the first message played,
 divided by ``rate``. The ``/world/*`` JSON topics are the world's own notes, not
-Zenoh traffic, and are not played.
+Zenoh traffic, and are not played, nor are Foxglove's views (``/tf``,
+``/robot/<id>/pose``) and ``/log/other``.
 
 * ``topics``: which channels to play: key expressions (``*`` one chunk, ``**``
   any, matched against the recorded key and the key it is played on) or kinds
@@ -34,8 +36,9 @@ from pathlib import Path
 from typing import Any
 
 from runtime import keys
+from sim_bridge import log_schemas as pb
 from sim_bridge.log_file import LogError, Recovery, iter_messages
-from sim_bridge.log_layout import WIRE_ENCODING
+from sim_bridge.log_layout import WIRE_ENCODING, channel_kind
 
 KINDS = (keys.POSE, keys.CMD, keys.STATUS, keys.PATTERN, keys.BRAIN)
 
@@ -137,7 +140,8 @@ def load_recording(
         k = key_of.get(ch.id)
         if k is None:
             k = -1
-            if ch.message_encoding == WIRE_ENCODING:
+            if ch.message_encoding == WIRE_ENCODING or channel_kind(
+                    ch.topic, ch.message_encoding, ch.schema_name)[0]:
                 old, new = _rename(ch.topic, swarm)
                 if new is not None and keep(ch.topic, new):
                     if old:
@@ -150,6 +154,11 @@ def load_recording(
             key_of[ch.id] = k
         if k < 0 or (start_s > 0 and lt < t_from):
             continue
+        if ch.message_encoding != WIRE_ENCODING:
+            try:
+                data = pb.to_wire(ch.schema_name, data)
+            except (ValueError, TypeError):  # does not encode back (another writer's)
+                continue
         times.append(lt)
         index.append(k)
         payloads.append(data)

@@ -20,8 +20,10 @@ GIF of the run (``.mp4`` when ffmpeg is installed). Play-back
 recorded timing; it takes the world's place, so by default it listens on the
 swarm's world endpoint, where robots and viewers connect.
 
-Exit codes: 0 done; 2 bad input (missing file, not an MCAP log, bad option,
-unusable brain), one line on stderr; 130 play-back stopped by Ctrl-C.
+Exit codes: 0 done; 1 the log is corrupted (damaged bytes inside it, not merely cut
+short: reported, what could be read is still analysed); 2 bad input (missing file,
+not an MCAP log, bad option, unusable brain), one line on stderr; 130 play-back
+stopped by Ctrl-C. Old logs (``patternrl-wire`` channels) are read like today's.
 """
 
 from __future__ import annotations
@@ -343,7 +345,7 @@ def _run_one(args: argparse.Namespace) -> int:
         if lines:
             print("\n".join(lines))
     if not args.play:
-        return 0
+        return 1 if data.recovery.corrupted else 0
     code = _play(args, path)
     if args.json:
         print(json.dumps(out))

@@ -37,6 +37,10 @@ def table(header: list[str], rows: list[list[str]], right: set[int]) -> list[str
 def recovery_line(r: RunReport) -> str:
     rec = r.recovery
     steps = (f"steps {r.first_step}-{r.last_step}" if r.first_step is not None else "no steps")
+    if rec.corrupted:
+        return (f"log CORRUPTED (damaged bytes inside the file): read {rec.messages} messages, "
+                f"{rec.corrupt_chunks} damaged chunks skipped, {r.steps_recorded} steps "
+                f"({steps}); {rec.error}")
     if rec.finished:
         return f"log finished: {rec.messages} messages, {r.steps_recorded} steps ({steps})"
     return (f"log NOT finished (writer killed?): recovered {rec.messages} messages in "
@@ -51,6 +55,8 @@ def format_report(r: RunReport) -> str:
            recovery_line(r)]
     if r.malformed:
         out.append(f"malformed messages: {r.malformed}")
+    for what, n in r.skipped.items():
+        out.append(f"skipped {n} {what}")
     if not r.phases:
         out.append("no pattern phase in the log")
         return "\n".join(out)

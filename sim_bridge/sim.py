@@ -2,8 +2,10 @@
 
 Plays ``--patterns`` in turn with the robots that come on ``--swarm`` (see
 :mod:`sim_bridge.sim_world` for what a step does, when a pattern is formed and how
-joins and leaves are followed), records the MCAP log (``--record``) and prints a
-line per pattern, or the result as JSON (``--json``).
+joins and leaves are followed), records the MCAP log (``--record``; an existing
+file is refused unless ``--force``), serves it live to Foxglove (``--foxglove``,
+:mod:`sim_bridge.foxglove_live`) and prints a line per pattern, or the result as
+JSON (``--json``).
 
 Brains (``--brains``, :mod:`sim_bridge.brain_choice`): ``none`` leaves the robots'
 brains alone; ``rule:assign`` or one brain file (``.onnx``, e.g.
@@ -27,6 +29,7 @@ import json
 import math
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
@@ -36,7 +39,8 @@ from runtime.patterns import PatternError, make_pattern
 from runtime.world_config import DEFAULT_WORLD
 from runtime.zenoh_session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
 from sim_bridge.brain_choice import BrainChoice, brains_from_arg
-from sim_bridge.recorder import Recorder
+from sim_bridge.foxglove_live import DEFAULT_ADDRESS, FoxgloveLive, parse_address
+from sim_bridge.recorder import Recorder, check_output
 from sim_bridge.run_results import RunResult, result_dict
 from sim_bridge.sim_world import DEFAULT_PATTERNS, SimConfig, SimWorld
 
@@ -50,6 +54,12 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
     p.add_argument("--patterns", default=DEFAULT_PATTERNS,
                    help=f"comma-separated, built-ins or files (default {DEFAULT_PATTERNS})")
     p.add_argument("--record", type=Path, default=None, metavar="RUN.mcap", help=record_help)
+    p.add_argument("--force", action="store_true",
+                   help="overwrite the --record file if it exists (refused otherwise)")
+    p.add_argument("--foxglove", nargs="?", const=DEFAULT_ADDRESS, default=None,
+                   metavar="HOST:PORT",
+                   help="serve the run live to Foxglove over WebSocket (needs the foxglove "
+                        f"extra); default {DEFAULT_ADDRESS}, port 0 = any free port")
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep: wait for every command (reproducible); realtime: fixed rate")
     p.add_argument("--seed", type=int, default=0, help="seed of the start positions (default 0)")
@@ -105,11 +115,32 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
     )
 
 
+def start_live(address: str | None, say: Callable[[str], None]) -> FoxgloveLive | None:
+    """The live server of ``--foxglove`` (None without it); its URL is said."""
+    if address is None:
+        return None
+    host, port = parse_address(address)
+    live = FoxgloveLive(host, port)
+    say(f"Foxglove live view on {live.url} (Foxglove: Open connection, that URL)")
+    return live
+
+
+def open_recorder(args: argparse.Namespace, live: FoxgloveLive | None) -> Recorder | None:
+    """The recorder of ``--record`` and/or ``--foxglove``; :class:`InputError` for a bad path."""
+    if args.record is None and live is None:
+        return None
+    return Recorder(args.record, live=live, overwrite=bool(args.force))
+
+
 def run(args: argparse.Namespace) -> int:
     patterns = [p.strip() for p in str(args.patterns).split(",") if p.strip()]
     try:
         brains = brains_from_arg(args.brains, patterns, args.robots, args.brain_kind)
         cfg = config_from_args(args, brains)
+        if args.record is not None:
+            check_output(args.record, args.force)
+        if args.foxglove is not None:
+            parse_address(args.foxglove)
     except InputError as e:
         print(f"patternrl sim: error: {e}", file=sys.stderr)
         return 2
@@ -118,7 +149,17 @@ def run(args: argparse.Namespace) -> int:
     except ZenohSetupError as e:
         print(f"patternrl sim: error: {e}", file=sys.stderr)
         return 2
-    rec = Recorder(args.record) if args.record is not None else None
+    live: FoxgloveLive | None = None
+    try:
+        live = start_live(args.foxglove, lambda m: print(f"sim: {m}", file=sys.stderr,
+                                                         flush=True))
+        rec = open_recorder(args, live)
+    except InputError as e:
+        if live is not None:
+            live.close()
+        session.close()  # type: ignore[no-untyped-call]
+        print(f"patternrl sim: error: {e}", file=sys.stderr)
+        return 2
     world = SimWorld(cfg, session, rec)
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -132,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(s, h)
         if rec is not None:
             rec.close()
+        if live is not None:
+            live.close()
         session.close()  # type: ignore[no-untyped-call]
     print_result(res, args.json)
     if res.outcome == "interrupted":

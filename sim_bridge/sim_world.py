@@ -57,7 +57,7 @@ from sim_bridge.brain_swaps import phase_brain_label, swap_brain_in
 from sim_bridge.membership import Membership
 from sim_bridge.phase_tally import PhaseTally
 from sim_bridge.physics import PhysicsWorld, arena_for_patterns
-from sim_bridge.recorder import Recorder
+from sim_bridge.recorder import Recorder, SimTime
 from sim_bridge.run_results import PhaseResult, Progress, RunResult
 from sim_bridge.world_link import WorldLink
 from sim_bridge.world_log import Say, WorldLog
@@ -146,6 +146,10 @@ class SimWorld:
                               self.journal.event)
         self.members = Membership(self.link.roster, self.physics, self.link, self.journal,
                                   self.rng, self.arena_m, self.w)
+        if recorder is not None and cfg.mode == "lockstep" and recorder.sim_time is None:
+            # the log's clock is the world's: a run plays back at the speed it moved
+            recorder.sim_time = SimTime(time.time_ns(), round(self.w.dt_s * 1e9),
+                                        lambda: self.step)
 
     @property
     def latencies_ms(self) -> list[float]:
@@ -200,7 +204,8 @@ class SimWorld:
                 contacts_total=self.physics.contacts_total)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
-                         str(self.rec.path) if self.rec else None, self.latencies_ms)
+                         str(self.rec.path) if self.rec and self.rec.path else None,
+                         self.latencies_ms)
 
     def _play(self, phases: list[PhaseResult]) -> str:
         """Place the robots and play the patterns in turn; the outcome."""

@@ -65,7 +65,7 @@ class WorldLog:
         if self.rec is None:
             return
         step = self._clock()
-        now_ns = time.time_ns()
+        now_ns = self.rec.log_time(step)
         self.rec.metrics({
             "step": step, "time_s": round(step * self.w.dt_s, 6), "phase": phase,
             "pattern": pattern, "pattern_version": version,
@@ -81,4 +81,5 @@ class WorldLog:
         robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]
         self.rec.scene(scene_update(now_ns, robots, targets, self._removed_since_scene,
                                     self.arena_m, self.w), now_ns)
+        self.rec.end_step()
         self._removed_since_scene = []

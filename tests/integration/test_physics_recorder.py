@@ -17,6 +17,7 @@ from mcap.reader import make_reader
 
 from runtime import messages as wire
 from runtime.world_config import DEFAULT_WORLD
+from sim_bridge import log_schemas
 from sim_bridge.log_file import iter_messages
 from sim_bridge.log_layout import EVENTS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 from sim_bridge.log_reader import read_log
@@ -139,12 +140,14 @@ def test_arena_grows_for_large_patterns() -> None:
 # ----------------------------------------------------------------------- recorder
 
 
-def test_recorder_round_trip(tmp_path: Path) -> None:
+@pytest.mark.parametrize("old", [False, True], ids=["protobuf", "old-wire-layout"])
+def test_recorder_round_trip(tmp_path: Path, old: bool) -> None:
+    """Today's layout and the old one (payloads as wire bytes) read back alike."""
     path = tmp_path / "run.mcap"
     pose = wire.Pose(2, 7, 0.7, 1.5, 2.5, 0.1, -0.2, 3)
     cmd = wire.Command(2, 7, 0.3, 0.4, "abc123", False, 0.0, 12.5)
     pat = wire.PatternMsg(1, "circle", np.array([[0.0, 0.0], [0.4, 0.0]]), 0.025)
-    with Recorder(path) as rec:
+    with Recorder(path, wire_layout=old) as rec:
         rec.write_wire("patternrl/s/robot/2/pose", wire.encode(pose))
         rec.write_wire("patternrl/s/robot/2/cmd", wire.encode(cmd))
         rec.write_wire("patternrl/s/pattern", wire.encode(pat))
@@ -166,15 +169,16 @@ def test_recorder_round_trip(tmp_path: Path) -> None:
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
-        assert summary.statistics.message_count == 7
+        # today's layout adds the pose's PoseInFrame and its step's /tf
+        assert summary.statistics.message_count == (7 if old else 9)
         schemas = {s.name: s.encoding for s in summary.schemas.values()}
         channels = {c.topic: c.message_encoding for c in summary.channels.values()}
-    assert schemas["patternrl.Pose"] == "patternrl-wire"
+    pose_schema, enc = ("patternrl.Pose", "patternrl-wire") if old else (
+        "patternrl.RobotPose", "protobuf")
+    assert schemas[pose_schema] == enc
     assert schemas["foxglove.SceneUpdate"] == "jsonschema"
     assert schemas["patternrl.Event"] == "jsonschema"
-    assert channels[SCENE_TOPIC] == "json" and channels["patternrl/s/robot/2/pose"] == (
-        "patternrl-wire"
-    )
+    assert channels[SCENE_TOPIC] == "json" and channels["patternrl/s/robot/2/pose"] == enc
 
     data = read_log(path)
     assert data.recovery.finished and data.malformed == 0
@@ -189,9 +193,15 @@ def test_recorder_round_trip(tmp_path: Path) -> None:
     ]
     assert data.metrics[0]["formation_error_m"] == 0.5
     other = "patternrl/s/something/else"
-    assert data.topics[other] == 1
-    raw = [(c, p) for c, _, _, _, p in iter_messages(path) if c.topic == other]
-    assert raw[0][1] == b"\x00raw" and raw[0][0].schema_name == ""
+    if old:
+        assert data.topics[other] == 1
+        raw = [(c, p) for c, _, _, _, p in iter_messages(path) if c.topic == other]
+        assert raw[0][1] == b"\x00raw" and raw[0][0].schema_name == ""
+    else:  # a foreign key's sample is kept whole on /log/other
+        assert data.topics["/log/other"] == 1
+        raw = [p for c, _, _, _, p in iter_messages(path) if c.topic == "/log/other"]
+        sample = log_schemas.parse(log_schemas.RAW_SAMPLE, raw[0])
+        assert (sample.key, sample.payload, sample.reason) == (other, b"\x00raw", "")
     ids, xy = fr.at(7)
     assert ids.tolist() == [2] and xy.tolist() == [[pose.x, pose.y]]
     with pytest.raises(KeyError):

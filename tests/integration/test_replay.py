@@ -43,7 +43,6 @@ from runtime.messages import (
     Command,
     PatternMsg,
     Pose,
-    decode_pose,
     encode_command,
     encode_pattern,
     encode_pose,
@@ -51,9 +50,10 @@ from runtime.messages import (
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
 from runtime.zenoh_session import open_session
+from sim_bridge import log_schemas as pb
 from sim_bridge.counterfactual import counterfactual
 from sim_bridge.log_file import Recovery, iter_messages, repair
-from sim_bridge.log_layout import WIRE_ENCODING
+from sim_bridge.log_layout import WIRE_ENCODING, channel_kind
 from sim_bridge.log_reader import read_log
 from sim_bridge.log_report import report_log
 from sim_bridge.plots import phase_tracks
@@ -449,7 +449,8 @@ def test_truncated_logs_recover_what_mcap_recovers_and_repair(tmp_path: Path) ->
         assert not rec.finished and rec.error and rec.messages == len(theirs)
         rep = report_log(cut)
         assert not rep.finished and rep.messages == len(theirs)
-        steps = {decode_pose(p).step for t, _, p in theirs if _kind(t) == keys.POSE}
+        steps = {pb.parse(pb.ROBOT_POSE, p).step for t, _, p in theirs
+                 if t.startswith("patternrl/") and _kind(t) == keys.POSE}
         assert rep.steps_recorded == len(steps)
         assert rep.recovery.bytes_read <= off == rep.recovery.file_bytes
         assert repair(cut, fixed).messages == len(theirs)
@@ -502,7 +503,9 @@ def test_sigkilled_writer_log_is_read_and_repaired(tmp_path: Path,
     assert not complete and len(theirs) >= flushed
     rep = report_log(log)
     assert not rep.finished and rep.messages == len(theirs)
-    assert rep.outcome == "cut short" and rep.steps_recorded >= (flushed - 1) // 3
+    steps = {pb.parse(pb.ROBOT_POSE, p).step for t, _, p in theirs
+             if t.startswith("patternrl/") and _kind(t) == keys.POSE}
+    assert rep.outcome == "cut short" and rep.steps_recorded == len(steps) >= (flushed - 1) // 7
     assert cli(["replay", str(log), "--repair", str(fixed)]) == 0
     out = capsys.readouterr().out
     assert "NOT finished" in out and f"recovered {len(theirs)} messages" in out
@@ -585,10 +588,14 @@ def _player(log: Path, listener: Listener, *extra: str) -> subprocess.Popen[str]
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _wire(log: Path, kinds: tuple[str, ...] = ("pose", "cmd", "status", "pattern", "brain")
-          ) -> list[tuple[str, bytes]]:
-    return [(c.topic, bytes(p)) for c, _, _, _, p in iter_messages(log)
-            if c.message_encoding == WIRE_ENCODING and _kind(c.topic) in kinds]
+def _wire(log: Path, kinds: tuple[str, ...] = ("pose", "cmd", "status", "pattern", "brain"),
+          after_ns: int = 0) -> list[tuple[str, bytes]]:
+    """The Zenoh messages a log stands for (protobuf channels encoded back), in file order."""
+    return [(c.topic, bytes(p) if c.message_encoding == WIRE_ENCODING
+             else pb.to_wire(c.schema_name, bytes(p)))
+            for c, t, _, _, p in iter_messages(log)
+            if channel_kind(c.topic, c.message_encoding, c.schema_name)[0] in kinds
+            and t >= after_ns]
 
 
 def _kind(key: str) -> str:
@@ -630,8 +637,7 @@ def test_play_back_renamed_swarm_topics_start_and_loops(tmp_path: Path, listener
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     first = next(iter(iter_messages(log)))[1]  # --start counts from the log's start
-    cmds = [(c.topic, bytes(p)) for c, t, _, _, p in iter_messages(log)
-            if _kind(c.topic) == keys.CMD and t >= first + int(1.05e9)]
+    cmds = _wire(log, ("cmd",), first + int(1.05e9))
     assert cmds and _kind(cmds[0][0]) == keys.CMD
     wait_for(lambda: lis2.count() >= len(cmds), 20, "the commands after 1.05 s")
     assert lis2.got == cmds

@@ -1,0 +1,298 @@
+"""The protobuf messages of a log: our own (``patternrl.*``) and Foxglove's well-known ones.
+
+Every Zenoh payload the recorder takes in is written as a protobuf message whose
+schema record holds a whole ``FileDescriptorSet`` (schema encoding ``protobuf``),
+so any MCAP tool decodes it (``mcap_protobuf.decoder.DecoderFactory``) without
+this project. Our own messages (package ``patternrl``, file ``patternrl/log.proto``)::
+
+    RobotPose     1 robot_id fixed32, 2 step fixed64, 3 time_s double, 4 x double,
+                  5 y double, 6 vx double, 7 vy double, 8 n_live fixed32      (m, m/s, s)
+    RobotCommand  1 robot_id fixed32, 2 step fixed64, 3 vx double, 4 vy double,
+                  5 safety_changed bool, 6 safety_change_mps double,
+                  7 decision_us double, 8 brain_id string
+    RobotStatus   the fields of runtime.messages.Status, numbered in their order
+    Pattern       1 version uint64, 2 name string, 3 formed_tol_m double,
+                  4 x repeated double, 5 y repeated double                       (metres)
+    BrainSwap     1 request_id string, 2 manifest_json string, 3 onnx bytes,
+                  4 target_robots repeated uint32
+    RawSample     1 key string, 2 size uint64, 3 reason string, 4 payload bytes
+
+Fixed-width fields make a pose or command the recorder writes one fixed layout
+(:data:`POSE_PB_DTYPE`, :func:`command_pb_dtype`): the reader views a whole run's
+payloads as numpy columns at once and parses with protobuf only the payloads of
+another layout (another writer, proto3 zeros left out). :func:`encode_pose_pb`
+and :func:`encode_command_pb` write that layout with :mod:`struct`; a unit test
+parses them back with the protobuf library.
+"""
+
+from __future__ import annotations
+
+import struct
+from functools import cache
+from typing import Any, Final
+
+import numpy as np
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from google.protobuf.descriptor import FileDescriptor
+from google.protobuf.message import DecodeError
+
+from runtime.messages import (
+    BrainMsg,
+    Command,
+    PatternMsg,
+    Pose,
+    Status,
+    encode_brain,
+    encode_command,
+    encode_pattern,
+    encode_pose,
+    encode_status,
+)
+
+PROTOBUF: Final = "protobuf"
+"""Message and schema encoding of every protobuf channel."""
+
+_F = descriptor_pb2.FieldDescriptorProto
+_FIXED32, _FIXED64, _DOUBLE, _BOOL, _STRING, _BYTES = (
+    _F.TYPE_FIXED32, _F.TYPE_FIXED64, _F.TYPE_DOUBLE, _F.TYPE_BOOL, _F.TYPE_STRING, _F.TYPE_BYTES)
+_UINT32, _UINT64 = _F.TYPE_UINT32, _F.TYPE_UINT64
+_REPEATED = "repeated"
+
+_MESSAGES: Final[dict[str, list[tuple[str, int] | tuple[str, int, str]]]] = {
+    "RobotPose": [("robot_id", _FIXED32), ("step", _FIXED64), ("time_s", _DOUBLE),
+                  ("x", _DOUBLE), ("y", _DOUBLE), ("vx", _DOUBLE), ("vy", _DOUBLE),
+                  ("n_live", _FIXED32)],
+    "RobotCommand": [("robot_id", _FIXED32), ("step", _FIXED64), ("vx", _DOUBLE),
+                     ("vy", _DOUBLE), ("safety_changed", _BOOL), ("safety_change_mps", _DOUBLE),
+                     ("decision_us", _DOUBLE), ("brain_id", _STRING)],
+    "RobotStatus": [("robot_id", _UINT32), ("step", _UINT64), ("brain_id", _STRING),
+                    ("decision_latency_us_p50", _DOUBLE), ("decision_latency_us_p99", _DOUBLE),
+                    ("loop_jitter_ms", _DOUBLE), ("messages_dropped", _UINT64),
+                    ("errors", _UINT64), ("safety_interventions", _UINT64),
+                    ("last_error", _STRING), ("uptime_s", _DOUBLE),
+                    ("swap_request_id", _STRING), ("swap_accepted", _BOOL),
+                    ("swap_reason", _STRING), ("old_brain_id", _STRING)],
+    "Pattern": [("version", _UINT64), ("name", _STRING), ("formed_tol_m", _DOUBLE),
+                ("x", _DOUBLE, _REPEATED), ("y", _DOUBLE, _REPEATED)],
+    "BrainSwap": [("request_id", _STRING), ("manifest_json", _STRING), ("onnx", _BYTES),
+                  ("target_robots", _UINT32, _REPEATED)],
+    "RawSample": [("key", _STRING), ("size", _UINT64), ("reason", _STRING),
+                  ("payload", _BYTES)],
+}
+
+
+def _file_proto() -> descriptor_pb2.FileDescriptorProto:
+    fdp = descriptor_pb2.FileDescriptorProto(name="patternrl/log.proto", package="patternrl",
+                                             syntax="proto3")
+    for name, spec in _MESSAGES.items():
+        m = fdp.message_type.add(name=name)
+        for number, f in enumerate(spec, start=1):
+            label = _F.LABEL_REPEATED if len(f) == 3 else _F.LABEL_OPTIONAL
+            m.field.add(name=f[0], number=number, type=f[1], label=label, json_name=f[0])
+    return fdp
+
+
+_POOL: Final = descriptor_pool.DescriptorPool()
+_FILE: Final[FileDescriptor] = _POOL.Add(_file_proto())  # type: ignore[func-returns-value]
+
+
+def message_class(name: str) -> Any:
+    """The protobuf class of one of our messages (``"patternrl.RobotPose"``) or Foxglove's
+    (``"foxglove.PoseInFrame"``)."""
+    pkg, short = name.split(".", 1)
+    if pkg == "patternrl":
+        return message_factory.GetMessageClass(_POOL.FindMessageTypeByName(name))
+    import importlib
+
+    return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{short}_pb2"), short)
+
+
+@cache
+def schema_data(name: str) -> bytes:
+    """The serialised ``FileDescriptorSet`` of message ``name``, its dependencies first."""
+    out = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: FileDescriptor) -> None:
+        for dep in fd.dependencies:
+            if dep.name not in seen:
+                seen.add(dep.name)
+                add(dep)
+        fd.CopyToProto(out.file.add())
+
+    add(message_class(name).DESCRIPTOR.file)
+    return out.SerializeToString()
+
+
+ROBOT_POSE: Final = "patternrl.RobotPose"
+ROBOT_COMMAND: Final = "patternrl.RobotCommand"
+ROBOT_STATUS: Final = "patternrl.RobotStatus"
+PATTERN: Final = "patternrl.Pattern"
+BRAIN_SWAP: Final = "patternrl.BrainSwap"
+RAW_SAMPLE: Final = "patternrl.RawSample"
+POSE_IN_FRAME: Final = "foxglove.PoseInFrame"
+FRAME_TRANSFORMS: Final = "foxglove.FrameTransforms"
+
+
+def _tag(field: int, wire_type: int) -> int:
+    return (field << 3) | wire_type
+
+
+# -- fixed layouts --------------------------------------------------------------------------
+
+_D, _Q, _I, _V, _L = 1, 1, 5, 0, 2  # wire types: 64-bit, 64-bit, 32-bit, varint, length
+_POSE_PB: Final = struct.Struct("<BIBQBdBdBdBdBdBI")
+_POSE_TAGS: Final = (_tag(1, _I), _tag(2, _Q), _tag(3, _D), _tag(4, _D), _tag(5, _D),
+                     _tag(6, _D), _tag(7, _D), _tag(8, _I))
+_POSE_NAMES: Final = ("robot_id", "step", "time_s", "x", "y", "vx", "vy", "n_live")
+POSE_PB_DTYPE: Final = np.dtype([
+    (n, f) for k, n in enumerate(_POSE_NAMES)
+    for n, f in ((f"t{k + 1}", "u1"), (n, {"robot_id": "<u4", "step": "<u8",
+                                            "n_live": "<u4"}.get(n, "<f8")))])
+"""A :func:`encode_pose_pb` payload as one numpy record (tag bytes ``t1``..``t8``)."""
+POSE_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 9)), _POSE_TAGS, strict=True))
+assert POSE_PB_DTYPE.itemsize == _POSE_PB.size == 64
+
+_CMD_PB: Final = struct.Struct("<BIBQBdBdBBBdBdBB")
+_CMD_TAGS: Final = (_tag(1, _I), _tag(2, _Q), _tag(3, _D), _tag(4, _D), _tag(5, _V),
+                    _tag(6, _D), _tag(7, _D), _tag(8, _L))
+_CMD_NAMES: Final = ("robot_id", "step", "vx", "vy", "safety_changed", "safety_change_mps",
+                     "decision_us", "brain_len")
+_CMD_FMT: Final = {"robot_id": "<u4", "step": "<u8", "safety_changed": "u1", "brain_len": "u1"}
+COMMAND_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 9)), _CMD_TAGS, strict=True))
+MAX_FIXED_BRAIN_BYTES: Final = 127
+"""Brain ids up to this many bytes keep a one-byte length: the fixed layout."""
+
+
+def command_pb_dtype(brain_len: int) -> np.dtype[np.void]:
+    """A :func:`encode_command_pb` payload whose brain id is ``brain_len`` bytes."""
+    fields: list[tuple[str, str]] = []
+    for k, n in enumerate(_CMD_NAMES):
+        fields += [(f"t{k + 1}", "u1"), (n, _CMD_FMT.get(n, "<f8"))]
+    if brain_len:
+        fields.append(("brain", f"S{brain_len}"))
+    return np.dtype(fields)
+
+
+def encode_pose_pb(p: Pose) -> bytes:
+    """A wire :class:`~runtime.messages.Pose` as a ``patternrl.RobotPose`` (64 bytes)."""
+    t = _POSE_TAGS
+    return _POSE_PB.pack(t[0], p.robot_id, t[1], p.step, t[2], p.time_s, t[3], p.x, t[4], p.y,
+                         t[5], p.vx, t[6], p.vy, t[7], p.n_live)
+
+
+def encode_command_pb(c: Command) -> bytes:
+    """A wire :class:`~runtime.messages.Command` as a ``patternrl.RobotCommand``."""
+    brain = c.brain_id.encode("utf-8")
+    t = _CMD_TAGS
+    if len(brain) > MAX_FIXED_BRAIN_BYTES:  # never for a sha256 prefix; kept exact anyway
+        m = message_class(ROBOT_COMMAND)(
+            robot_id=c.robot_id, step=c.step, vx=c.vx, vy=c.vy,
+            safety_changed=c.safety_changed, safety_change_mps=c.safety_change_mps,
+            decision_us=c.decision_us, brain_id=c.brain_id)
+        return bytes(m.SerializeToString())
+    return _CMD_PB.pack(t[0], c.robot_id, t[1], c.step, t[2], c.vx, t[3], c.vy, t[4],
+                        int(c.safety_changed), t[5], c.safety_change_mps, t[6], c.decision_us,
+                        t[7], len(brain)) + brain
+
+
+def status_pb(s: Status) -> bytes:
+    m = message_class(ROBOT_STATUS)(**{f: getattr(s, f) for f, *_ in _MESSAGES["RobotStatus"]})
+    return bytes(m.SerializeToString())
+
+
+def pattern_pb(p: PatternMsg) -> bytes:
+    m = message_class(PATTERN)(version=p.version, name=p.name, formed_tol_m=p.formed_tol_m,
+                               x=p.points[:, 0].tolist(), y=p.points[:, 1].tolist())
+    return bytes(m.SerializeToString())
+
+
+def brain_pb(b: BrainMsg) -> bytes:
+    m = message_class(BRAIN_SWAP)(request_id=b.request_id, manifest_json=b.manifest_json,
+                                  onnx=b.onnx_bytes, target_robots=list(b.target_robots))
+    return bytes(m.SerializeToString())
+
+
+def raw_sample_pb(key: str, size: int, reason: str, payload: bytes) -> bytes:
+    m = message_class(RAW_SAMPLE)(key=key, size=size, reason=reason, payload=payload)
+    return bytes(m.SerializeToString())
+
+
+def parse(name: str, data: bytes) -> Any:
+    """Parse one payload of message ``name``; ``ValueError`` if it is not one."""
+    m = message_class(name)()
+    try:
+        m.ParseFromString(data)
+    except (DecodeError, RuntimeError) as e:
+        raise ValueError(f"not a {name}: {e}") from None
+    return m
+
+
+def to_wire(name: str, data: bytes) -> bytes:
+    """The Zenoh payload a recorded protobuf message stands for (play-back puts it back)."""
+    m = parse(name, data)
+    if name == ROBOT_POSE:
+        return encode_pose(Pose(m.robot_id, m.step, m.time_s, m.x, m.y, m.vx, m.vy, m.n_live))
+    if name == ROBOT_COMMAND:
+        return encode_command(Command(m.robot_id, m.step, m.vx, m.vy, m.brain_id,
+                                      m.safety_changed, m.safety_change_mps, m.decision_us))
+    if name == ROBOT_STATUS:
+        return encode_status(Status(**{f: getattr(m, f) for f, *_ in _MESSAGES["RobotStatus"]}))
+    if name == PATTERN:
+        pts = np.stack([np.asarray(m.x, float), np.asarray(m.y, float)], axis=1).reshape(-1, 2)
+        return encode_pattern(PatternMsg(m.version, m.name, pts, m.formed_tol_m))
+    if name == BRAIN_SWAP:
+        return encode_brain(BrainMsg(m.request_id, m.manifest_json, bytes(m.onnx),
+                                     tuple(m.target_robots)))
+    if name == RAW_SAMPLE:
+        return bytes(m.payload)
+    raise ValueError(f"{name} is not a Zenoh message")
+
+
+# -- Foxglove's poses and transforms, written by hand (the library's builders cost ~5x) ----
+
+
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while n > 0x7F:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _field(number: int, body: bytes) -> bytes:
+    """A length-delimited field (a string or a nested message)."""
+    return bytes((_tag(number, _L),)) + _varint(len(body)) + body
+
+
+_XY: Final = struct.Struct("<BdBd")
+_IDENTITY_Q: Final = _field(2, struct.pack("<Bd", _tag(4, _D), 1.0))  # orientation w = 1
+
+
+def _timestamp(t_ns: int) -> bytes:
+    sec, nsec = divmod(max(int(t_ns), 0), 1_000_000_000)
+    body = (bytes((_tag(1, _V),)) + _varint(sec) if sec else b"") + (
+        bytes((_tag(2, _V),)) + _varint(nsec) if nsec else b"")
+    return _field(1, body)
+
+
+def _vector_xy(number: int, x: float, y: float) -> bytes:
+    return _field(number, _XY.pack(_tag(1, _D), x, _tag(2, _D), y))
+
+
+def pose_in_frame_pb(t_ns: int, frame: str, x: float, y: float) -> bytes:
+    """A ``foxglove.PoseInFrame`` at (x, y, 0) metres, identity orientation, time ``t_ns``."""
+    pose = _vector_xy(1, x, y) + _IDENTITY_Q
+    return _timestamp(t_ns) + _field(2, frame.encode()) + _field(3, pose)
+
+
+def frame_transforms_pb(t_ns: int, parent: str, children: list[tuple[str, float, float]]
+                        ) -> bytes:
+    """A ``foxglove.FrameTransforms``: ``parent`` -> each (child frame, x, y) metres."""
+    stamp = _timestamp(t_ns)
+    par = _field(2, parent.encode())
+    rot = _field(5, struct.pack("<Bd", _tag(4, _D), 1.0))
+    return b"".join(
+        _field(1, stamp + par + _field(3, c.encode()) + _vector_xy(4, x, y) + rot)
+        for c, x, y in children)
