@@ -29,6 +29,7 @@ from sim_bridge import log_schemas as pb
 from sim_bridge.foxglove_client import FoxgloveClient
 from sim_bridge.log_file import iter_messages
 from sim_bridge.log_report import report_log
+from sim_bridge.swarm_keys import create_swarm_keys
 
 pytestmark = pytest.mark.timeout(180)
 PY = sys.executable
@@ -71,12 +72,15 @@ def _stop(p: subprocess.Popen[str], sig: int = signal.SIGINT) -> None:
 def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> None:
     world_log, outside_log = tmp_path / "world.mcap", tmp_path / "outside.mcap"
     port, swarm = free_port(), f"live{os.getpid()}"
+    keys_dir = tmp_path / "keys"  # secure by default: world, robots and recorder prove who they are
+    create_swarm_keys(keys_dir, swarm, 3)
+    tls = ["--tls-dir", str(keys_dir)]
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
     env.pop("PATTERNRL_ZENOH_PORT", None)
     sim = subprocess.Popen(
         [PY, "-m", "patternrl.cli", "sim", "--swarm", swarm, "--robots", "3", "--patterns",
          "line", "--seed", "2", "--record", str(world_log), "--json", "--zenoh-port", str(port),
-         "--wait-robots-s", "90", "--foxglove", "127.0.0.1:0"],
+         "--wait-robots-s", "90", "--foxglove", "127.0.0.1:0", *tls],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     procs: list[subprocess.Popen[str]] = [sim]
     sim_err = Lines(sim.stderr)  # type: ignore[arg-type]
@@ -85,7 +89,7 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
         live_port = int(url.group(1))
         rec = subprocess.Popen(
             [PY, "-m", "patternrl.cli", "record", "--swarm", swarm, "--out", str(outside_log),
-             "--zenoh-port", str(port)],
+             "--zenoh-port", str(port), *tls],
             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         procs.append(rec)
         rec_err = Lines(rec.stderr)  # type: ignore[arg-type]
@@ -95,7 +99,7 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
         client = FoxgloveClient("127.0.0.1", live_port)
         procs += [subprocess.Popen(
             [PY, "-m", "patternrl.cli", "robot", "--swarm", swarm, "--id", str(i), "--brain",
-             "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2"],
+             "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2", *tls],
             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
             for i in range(3)]
         with client:
@@ -138,7 +142,7 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
     assert theirs.last_step == ours.last_step
     # the output exists now: refused without --force, one line, exit 2
     r = subprocess.run([PY, "-m", "patternrl.cli", "record", "--swarm", swarm, "--out",
-                        str(outside_log), "--zenoh-port", str(port)],
+                        str(outside_log), "--zenoh-port", str(port), *tls],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
     assert "exists; pass --force" in r.stderr
@@ -153,7 +157,7 @@ def test_sim_record_refuses_an_existing_file_or_a_directory(
     else:
         target = tmp_path
     assert cli(["sim", "--record", str(target), "--swarm", "x", "--zenoh-port",
-                str(free_port())]) == 2
+                str(free_port()), "--insecure"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and ("exists; pass --force" in err[0] or "is a directory" in err[0])
     if case == "exists":
@@ -164,6 +168,6 @@ def test_sim_record_refuses_an_existing_file_or_a_directory(
 def test_a_bad_foxglove_address_is_one_line_and_exit_2(
         address: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli(["sim", "--foxglove", address, "--swarm", "x", "--zenoh-port",
-                str(free_port())]) == 2
+                str(free_port()), "--insecure"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--foxglove" in err[0]
