@@ -20,6 +20,8 @@ dropped and counted (``malformed`` events, the first 100), never a crash.
 came in the last :data:`SILENT_STEPS` exchanges (a phantom that never answers,
 a robot stuck) is not waited for; it holds still each step (counted as a
 deadline miss) and is waited for again as soon as any command of it arrives.
+When every robot is silent (the world cut off from its team), each step waits
+its full deadline for all of them, so a cut link does not spend the step limit.
 """
 
 from __future__ import annotations
@@ -299,6 +301,8 @@ class WorldLink:
             n = self._exchanges
             self._expect = {r for r in ids
                             if n - self._spoke_at.get(r, -SILENT_STEPS) <= SILENT_STEPS}
+            if not self._expect:  # the whole team silent (a link cut): wait the full deadline,
+                self._expect = set(ids)  # do not race to the step limit with nobody listening
             self._cmds = {}
             self._cmd_t = {}
         t0 = time.monotonic()
