@@ -292,20 +292,18 @@ class Controller:
             # 2. observe (own row): the general builder's one-robot kernel on the
             # lists kept for the safety filter, else the builder itself
             obs: Array | None = None  # a team rule plans from the poses (step 3)
-            if team is not None:
-                pass
-            elif spec.name == "general":
+            if team is None and spec.name == "general":
                 sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
                 row = general_row(i, self._L, self._V, (sx, sy), spec.k_neighbours, self.world)
                 obs = np.array([row])
-            else:
+            elif team is None:
                 obs = observe(spec, self._frames, None, (i,), self.world)
             # 3. act
             try:
-                if obs is None:
+                if team is not None:
                     c = np.asarray(self._pattern_obj, dtype=np.float64)
                     bvx, bvy = np.asarray(team(pos[None], c[None], slots[None]))[0, i].tolist()
-                else:
+                elif obs is not None:
                     bvx, bvy = brain_velocities(brain, obs)[0]
             except Exception:  # a brain must never take the loop down
                 error = ERR_BRAIN
