@@ -123,14 +123,20 @@ class FrameRule:
     """
 
     def __init__(
-        self, name: str, world: WorldConfig = DEFAULT_WORLD, k_neighbours: int = 6
+        self,
+        name: str,
+        world: WorldConfig = DEFAULT_WORLD,
+        k_neighbours: int = 6,
+        travel_weight: float | None = None,
     ) -> None:
+        """``travel_weight`` (default: the named rule's) places any frame between the two
+        ends, e.g. to trace the frontier (``benchmarks/frontier.py``)."""
         if name not in FRAME_RULES:
             raise ValueError(f"unknown team rule '{name}' (known: {', '.join(FRAME_RULES)})")
-        self.brain_id = name
+        self.travel_weight = FRAME_RULES[name] if travel_weight is None else float(travel_weight)
+        self.brain_id = name if travel_weight is None else f"{name}@{self.travel_weight:g}"
         self.spec = ObservationSpec("general", k_neighbours=k_neighbours)
         self.manifest: BrainManifest | None = None
-        self.travel_weight = FRAME_RULES[name]
         self._world = world
 
     def act(self, obs: NDArray[Any]) -> Array:
