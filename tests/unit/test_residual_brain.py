@@ -55,8 +55,8 @@ def test_zero_residual_brain_equals_the_rule_number_for_number(
     pos = rng.uniform(0.0, 3.0, (E, n, 2))
     frames = np.stack([pos, pos - rng.uniform(-0.05, 0.05, pos.shape), pos], axis=1)
     C = make_pattern("heart", n)
-    v_b, s_b, c_b = decide_batch(brain, frames, C, None, safety)
-    v_r, s_r, c_r = decide_batch(rule, frames, C, None, safety)
+    v_b, s_b, _ = decide_batch(brain, frames, C, None, safety)
+    v_r, s_r, _ = decide_batch(rule, frames, C, None, safety)
     np.testing.assert_array_equal(s_b, s_r)
     # float32 in the graph, float64 in the rule: equal to float32 rounding
     np.testing.assert_allclose(v_b, v_r, rtol=1e-6, atol=1e-6)
