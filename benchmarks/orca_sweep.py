@@ -23,8 +23,8 @@ crowds          the deadlock stress: 8 and 12 robots on a 2 m circle each
 =============== =================================================================
 
 A grid point is admissible when success is 100 %, there is no collision, the
-closest approach stays >= 2R in the episodes and the crowds, and no crowd
-stalls; the recommended default is the admissible point of least cost (the
+closest approach stays >= 2R + 5 mm in the episodes and >= 2R in the crowds,
+and no crowd stalls; the recommended default is the admissible point of least cost (the
 mean of the steps and travel costs), printed last.
 
     .venv/bin/python benchmarks/orca_sweep.py [--episodes 10] [--quick] [--json]
@@ -63,6 +63,9 @@ QUICK_MARGINS = (0.0, 0.01)
 CASES = (("circle", 10), ("heart", 25), ("random", 13))
 RULES = ("rule:assign", "rule:frame")
 CROWD_STEPS = 150
+SLACK_M = 0.005
+"""Closest approach required in the episodes beyond 2R: a point that only just
+touches 2R on these seeds (no margin) would not keep it on others."""
 
 
 @dataclass
@@ -81,7 +84,7 @@ class Point:
         return (
             self.success == 1.0
             and self.collisions == 0
-            and self.min_sep_m >= W.min_separation_m - 1e-9
+            and self.min_sep_m >= W.min_separation_m + SLACK_M
             and all(s is not None and d >= W.min_separation_m - 1e-9 for _, s, d in self.crowds)
         )
 
