@@ -40,7 +40,8 @@ Choices, all documented here:
   roundabout instead of a jam (8 robots swapping antipodes on a 2 m circle
   arrive with the defaults, tau = 0.75 s and a 2 cm margin, in 71 steps, and
   12 in 88; at tau = 0.5 s with a 1 cm margin they stall, without collision:
-  ``benchmarks/orca_sweep.py`` measures which settings stall). The rule is a symmetry breaker, not a traffic law: it does not
+  ``benchmarks/orca_sweep.py`` measures which settings stall).
+  The rule is a symmetry breaker, not a traffic law: it does not
   override an encounter that is already asymmetric (a head-on pair offset by
   a few millimetres passes on whichever side ORCA picks). It is deterministic
   (no RNG) and does nothing when the preferred velocity is already safe.
