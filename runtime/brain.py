@@ -16,6 +16,12 @@ reads), ``manifest`` and ``act(obs) -> velocities``. Two kinds ship here:
     dt, clipped to v_max). The first baseline, and what exercises the whole
     runtime without a trained brain.
 
+:class:`runtime.rules.FrameRule` (``rule:frame``, ``rule:frame-travel``)
+    Team rules: straight lines in one frame fixed per pattern, every robot
+    arriving at the same step (fewer metres than ``rule:assign`` for the same
+    or a few more steps). :data:`RULES` is the registry of every rule name;
+    :func:`make_rule` builds one. Rules are code, not files: no signature.
+
 Manifest (:mod:`runtime.brain_manifest`). Every ONNX brain carries a
 :class:`BrainManifest` twice: as a sidecar ``<stem>.json`` next to
 ``<stem>.onnx`` (with ``brain_id``), and inside the ONNX metadata (without).
@@ -61,6 +67,7 @@ from runtime.observation import (
     general_observation,
     paper_observation,
 )
+from runtime.rules import FRAME_RULES, FrameRule
 from runtime.signing import TrustedKeys, verify_manifest
 from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -77,6 +84,7 @@ __all__ = [
     "brain_digest",
     "load_brain",
     "load_sent_brain",
+    "make_rule",
     "open_brain",
     "probe_observations",
     "read_brain_file",
@@ -88,7 +96,9 @@ __all__ = [
 
 RULE_PREFIX: Final = "rule:"
 RULE_ASSIGN: Final = "rule:assign"
-RULES: Final = (RULE_ASSIGN,)
+RULES: Final = (RULE_ASSIGN, *FRAME_RULES)
+"""The rule registry: every name ``--brain rule:NAME`` accepts, in the robot,
+``eval``, ``launch --brains`` and the benchmarks."""
 RULE_KEY: Final = "rule"
 """The key of the manifest a swap sends for a rule brain: ``{"rule": "rule:assign"}``."""
 INPUT_NAME: Final = "obs"
@@ -473,9 +483,16 @@ def open_brain(
 ) -> Brain:
     """The brain of a :class:`BrainFile`, validated and warmed (:func:`validate_brain_bytes`)."""
     if file.manifest is None:
-        _known_rule(file.ref)
-        return RuleBrain(world)  # RULES holds rule:assign alone
+        return make_rule(file.ref, world)
     return _validate_bytes(file.data, file.manifest, file.brain_id, world, file.session, trust)
+
+
+def make_rule(name: str, world: WorldConfig = DEFAULT_WORLD) -> Brain:
+    """The rule brain called ``name`` (one of :data:`RULES`); :class:`BrainError` if unknown."""
+    _known_rule(name)
+    if name == RULE_ASSIGN:
+        return RuleBrain(world)
+    return FrameRule(name, world)
 
 
 def load_brain(

@@ -9,6 +9,13 @@ A decision is a list of named steps, each with one implementation:
 2. **observe** -- :func:`runtime.observation.observe`, the builder the
    brain's spec names, for every robot or for the robot's own row.
 3. **act** -- :func:`brain_velocities`: the brain's velocity per row (m/s).
+   A *team rule* (a brain with ``team_velocities``, e.g. ``rule:frame``,
+   :mod:`runtime.rules`) skips step 2 and plans from what every robot sees
+   anyway -- all positions, the pattern and the shared assignment of step 1 --
+   with one function that both paths call on a batch (the robot on a batch of
+   one team, then takes its own row), so a robot and ``eval`` agree number for
+   number. It keeps no state between steps: its plan re-derives its frame from
+   the poses (see :mod:`runtime.rules` for why that frame does not drift).
 4. **command** -- :func:`command`: clamp to v_max, the ORCA safety filter
    on the robot's view of its neighbours (:func:`neighbour_rows` over
    :func:`frame_velocities`), clamp again. A non-finite brain velocity holds
@@ -281,17 +288,23 @@ class Controller:
             slots = assign_centred(pos - cen, self._cc, self._prev_slots)
             self._prev_slots = slots
             slot = int(slots[i])
+            team = getattr(brain, "team_velocities", None)
             # 2. observe (own row): the general builder's one-robot kernel on the
             # lists kept for the safety filter, else the builder itself
-            if spec.name == "general":
+            obs: Array | None = None  # a team rule plans from the poses (step 3)
+            if team is None and spec.name == "general":
                 sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
                 row = general_row(i, self._L, self._V, (sx, sy), spec.k_neighbours, self.world)
                 obs = np.array([row])
-            else:
+            elif team is None:
                 obs = observe(spec, self._frames, None, (i,), self.world)
             # 3. act
             try:
-                bvx, bvy = brain_velocities(brain, obs)[0]
+                if team is not None:
+                    c = np.asarray(self._pattern_obj, dtype=np.float64)
+                    bvx, bvy = np.asarray(team(pos[None], c[None], slots[None]))[0, i].tolist()
+                elif obs is not None:
+                    bvx, bvy = brain_velocities(brain, obs)[0]
             except Exception:  # a brain must never take the loop down
                 error = ERR_BRAIN
             # 4. command
@@ -337,11 +350,15 @@ def decide_batch(
         raise ValueError(f"brain spec '{spec.name}' ({spec.n_robots} robots) cannot drive {n}")
     # 1. assign
     slots = assign_slots_batch(pos, C, prev_slots)
-    # 2. observe (every row)
-    target = slot_positions(pos, C, slots) if spec.needs_slots else None
-    obs = observe(spec, f, target, None, world)
-    # 3. act
-    act = brain_velocities(brain, obs.reshape(E * n, spec.dim))
+    team = getattr(brain, "team_velocities", None)
+    if team is not None:  # a team rule: steps 2-3 from the poses
+        act: Rows = np.asarray(team(pos, C, slots), dtype=np.float64).reshape(E * n, 2).tolist()
+    else:
+        # 2. observe (every row)
+        target = slot_positions(pos, C, slots) if spec.needs_slots else None
+        obs = observe(spec, f, target, None, world)
+        # 3. act
+        act = brain_velocities(brain, obs.reshape(E * n, spec.dim))
     # 4. command, robot by robot
     vel = np.zeros((E, n, 2))
     changed = np.zeros((E, n), dtype=bool)

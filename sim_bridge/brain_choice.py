@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from runtime.brain import RULE_ASSIGN, BrainError, BrainManifest, sidecar_path
+from runtime.brain import RULE_ASSIGN, RULES, BrainError, BrainManifest, sidecar_path
 from runtime.errors import InputError
 from runtime.patterns import pattern_label
 
@@ -116,8 +116,8 @@ def brains_from_arg(value: str, patterns: list[str], n: int, prefer: str
     if value == "none":
         return None
     if value.startswith("rule:"):
-        if value != RULE_ASSIGN:
-            raise InputError(f"unknown rule brain '{value}' (known: {RULE_ASSIGN})")
+        if value not in RULES:
+            raise InputError(f"unknown rule brain '{value}' (known: {', '.join(RULES)})")
         return {p: rule_choice(value) for p in patterns}
     d = Path(value)
     if d.is_file():

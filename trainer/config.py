@@ -55,6 +55,9 @@ class TrainConfig:
     """Observation spec name: ``paper`` or ``general``."""
     k_neighbours: int = 6
     """``general`` observation: neighbours seen."""
+    residual: bool = False
+    """``general`` only: the action is ``rule:assign``'s velocity plus the policy's
+    (:class:`trainer.networks.Agent`), so a brain starts at the rule."""
     n_robots: int = 10
     seed: int = 0
 

@@ -79,6 +79,10 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
         nodes.append(helper.make_node("Gemm", [x, w, b], [f"{name}.out"], transB=1, name=name))
         return f"{name}.out"
 
+    def const_i64(name: str, value: list[int]) -> str:
+        inits.append(numpy_helper.from_array(np.asarray(value, dtype=np.int64), name))
+        return name
+
     def unary(op: str, x: str, name: str) -> str:
         nodes.append(helper.make_node(op, [x], [name], name=name))
         return name
@@ -105,7 +109,27 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
     x = chain(x, _linear_layers(agent.policy.trunk, "policy.trunk"), relu_last=True)
     v_max = const("v_max", agent.v_max_mps)
     mean = unary("Tanh", gemm(x, "policy.mean_head", agent.policy.mean_head), "mean.tanh")
-    nodes.append(helper.make_node("Mul", [mean, v_max], ["action"], name="action"))
+    if agent.residual:  # action = v_max * tanh(.) + clip_vmax(obs[:, 0:2] / dt)
+        nodes += [
+            helper.make_node("Mul", [mean, v_max], ["residual"], name="residual"),
+            helper.make_node(
+                "Slice",
+                ["obs", const_i64("rule.start", [0]), const_i64("rule.end", [2]),
+                 const_i64("rule.axes", [1])],
+                ["rule.slot"],
+                name="rule.slot",
+            ),
+            helper.make_node("Div", ["rule.slot", const("rule.dt", agent.dt_s)], ["rule.v"],
+                             name="rule.v"),
+            helper.make_node("ReduceL2", ["rule.v"], ["rule.speed"], axes=[1], keepdims=1,
+                             name="rule.speed"),
+            helper.make_node("Max", ["rule.speed", v_max], ["rule.den"], name="rule.den"),
+            helper.make_node("Div", [v_max, "rule.den"], ["rule.scale"], name="rule.scale"),
+            helper.make_node("Mul", ["rule.v", "rule.scale"], ["rule.out"], name="rule.out"),
+            helper.make_node("Add", ["residual", "rule.out"], ["action"], name="action"),
+        ]
+    else:
+        nodes.append(helper.make_node("Mul", [mean, v_max], ["action"], name="action"))
     sp = unary("Softplus", gemm(x, "policy.std_head", agent.policy.std_head), "std.softplus")
     min_std = const("policy.min_std", agent.policy.min_std)
     nodes.append(helper.make_node("Add", [sp, min_std], ["std.floor"], name="std.floor"))
@@ -187,6 +211,8 @@ def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Age
     if "normaliser.shift" not in w or "policy.mean_head.weight" not in w:
         raise BrainFileError(f"{path} is not a Pattern-RL brain (unknown layout)")
     has_ae = "encoder.0.weight" in w
+    cfg = cfg.with_(residual="rule.dt" in w)
+    dt_s = float(w["rule.dt"]) if "rule.dt" in w else 0.1
     if has_ae != cfg.uses_autoencoder:
         kind = "pattern-rl" if has_ae else "ppo"
         raise BrainFileError(f"{path} is a {kind} brain; train it with --algo {kind}")
@@ -196,7 +222,7 @@ def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Age
             latent_dim=int(w["encoder.2.weight"].shape[0]),
             ae_hidden=int(w["encoder.0.weight"].shape[0]),
         )
-    agent = Agent(obs_dim, cfg, v_max_mps)
+    agent = Agent(obs_dim, cfg, v_max_mps, dt_s)
     state = agent.state_dict()
     for key, value in w.items():
         if key in state and state[key].shape == value.shape:

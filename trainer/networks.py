@@ -22,6 +22,13 @@
   action is ``v_max * tanh(.)``.
 * **Value** ``V_phi``: 128-128-256 ReLU and one linear output.
 
+**Residual** (``TrainConfig.residual``, general observation only): the action
+is ``rule:assign``'s velocity, computed from the observation's slot vector
+(columns 0:2) as ``clip_vmax(slot / dt)``, plus ``v_max * tanh(.)`` of the
+policy; the mean head's weights and bias start at zero, so a fresh residual
+brain *is* the rule (to float32 rounding) and learning moves it from there.
+The rule part is in the exported graph too (trainer/export.py).
+
 With ``algo="ppo"`` (the ablation) there is no auto-encoder: policy and value
 read the normalised observation directly; the networks are otherwise the same.
 """
@@ -139,10 +146,14 @@ class Value(nn.Module):
 class Agent(nn.Module):
     """Normaliser, auto-encoder (Pattern-RL only), policy and value, with v_max."""
 
-    def __init__(self, obs_dim: int, cfg: TrainConfig, v_max_mps: float) -> None:
+    def __init__(
+        self, obs_dim: int, cfg: TrainConfig, v_max_mps: float, dt_s: float = 0.1
+    ) -> None:
         super().__init__()
         self.obs_dim = obs_dim
         self.v_max_mps = float(v_max_mps)
+        self.residual = bool(getattr(cfg, "residual", False))
+        self.dt_s = float(dt_s)
         self.normaliser = ObsNormaliser(obs_dim)
         self.encoder: nn.Module
         self.decoder: nn.Module | None
@@ -156,6 +167,19 @@ class Agent(nn.Module):
             feat = obs_dim
         self.policy = Policy(feat, cfg.init_std, cfg.min_std)
         self.value = Value(feat)
+        if self.residual:  # start exactly at the rule
+            nn.init.zeros_(self.policy.mean_head.weight)
+            nn.init.zeros_(self.policy.mean_head.bias)
+
+    def base_mps(self, obs: torch.Tensor) -> torch.Tensor:
+        """The velocity the residual is added to (m/s), (B, 2): ``rule:assign``'s,
+        slot vector / dt clipped to v_max; zeros when the agent is not residual."""
+        if not self.residual:
+            return torch.zeros(*obs.shape[:-1], 2, dtype=obs.dtype)
+        v = obs[..., 0:2] / self.dt_s
+        sp = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+        out: torch.Tensor = v * (self.v_max_mps / torch.clamp_min(sp, self.v_max_mps))
+        return out
 
     def features(self, obs: torch.Tensor) -> torch.Tensor:
         """e = I_mu(normalise(o)); the normalised observation itself without auto-encoder."""
@@ -165,7 +189,7 @@ class Agent(nn.Module):
     def act_mps(self, obs: torch.Tensor) -> torch.Tensor:
         """Deterministic action in m/s: v_max * tanh(.). What the exported brain computes."""
         mean, _ = self.policy(self.features(obs))
-        out: torch.Tensor = mean * self.v_max_mps
+        out: torch.Tensor = mean * self.v_max_mps + self.base_mps(obs)
         return out
 
 

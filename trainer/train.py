@@ -225,7 +225,8 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             value = agent.value(e)
             a = mean + std * torch.randn(mean.shape, generator=gen)
             logp = gaussian_logprob(a, mean, std)
-            res = bw.step((a * v_max_mps).numpy().reshape(E, N, 2))
+            base = agent.base_mps(torch.from_numpy(obs.reshape(E * N, -1)))  # 0 unless residual
+            res = bw.step((a * v_max_mps + base).numpy().reshape(E, N, 2))
             reward = res.reward.copy()
             ep = res.episode
             if ep is not None:

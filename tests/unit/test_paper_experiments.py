@@ -115,5 +115,6 @@ def test_tiny_run_writes_the_document(pe: ModuleType, tmp_path: Path) -> None:
         assert part in doc, part
     assert (out / "figures" / "polygons.png").stat().st_size > 0
     raw = json.loads((out / "results.json").read_text())
-    assert {p["method"] for p in raw["polygons"]} == {"rule-off", "rule-orca-1", "mlp-raw",
-                                                     "mlp-orca-1"}
+    taus = {f"{OrcaParams().time_horizon_s:g}", "1"}  # the default horizon and the paper's 1 s
+    assert {p["method"] for p in raw["polygons"]} == {
+        "rule-off", "mlp-raw", *(f"{m}-orca-{t}" for m in ("rule", "mlp") for t in taus)}

@@ -154,12 +154,13 @@ def test_overtaking_fast_behind_slow() -> None:
 
 def test_crowd_of_eight_swapping_antipodes() -> None:
     # Eight robots on a circle of radius 2 each head for the opposite point.
-    # Observed (seeded, deterministic): with the defaults (tau = 1 s, keep-right
-    # 0.2 rad) the crowd forms a clockwise roundabout at the centre and all
-    # arrive at step 60; closest approach 0.220 m = the inflated 2(R + margin).
-    # Plain RVO2 (keep_right_rad=0) and keep-right 0.1 rad stall for good in a
-    # ring around the centre (no collision either); with keep-right 0.2 rad,
-    # tau = 0.5 s and tau = 2 s stall too. 12 robots arrive at step 70.
+    # Observed (seeded, deterministic): with the defaults (tau = 0.75 s, margin
+    # 0.02 m, keep-right 0.2 rad) the crowd forms a clockwise roundabout at the
+    # centre and all arrive at step 71; closest approach 0.240 m = the inflated
+    # 2(R + margin). Plain RVO2 (keep_right_rad=0) stalls for good in a ring
+    # around the centre (no collision either); with keep-right 0.2 rad, tau =
+    # 0.5 s with a 0.01 m margin stalls too. 12 robots arrive at step 88
+    # (benchmarks/orca_sweep.py prints the grid).
     n = 8
     ang = np.arange(n) * 2.0 * np.pi / n
     starts = 2.0 * np.c_[np.cos(ang), np.sin(ang)]

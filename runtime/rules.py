@@ -1,0 +1,148 @@
+"""Team rules: rule brains that plan from the whole team, not from one observation row.
+
+``rule:assign`` (:class:`runtime.brain.RuleBrain`) reads one robot's general
+observation and drives straight to its slot at up to v_max. Its slots sit on
+the team's *current* centroid, and the centroid drifts while the far robots are
+clipped to v_max and the near ones are not: it lands in about the fewest steps
+(1.02x the lower bound) but travels 1.15x the least travel.
+
+A :class:`FrameRule` fixes that drift without keeping any state. It is the
+synchronised straight-line plan of CAPT (Turpin, Michael and Kumar, "Concurrent
+assignment and planning of trajectories for multiple robots", 2014): every
+robot heads straight for its slot in one shared frame ``t`` (a translation of
+the pattern) at the speed that makes *all* robots arrive at the same step::
+
+    s_i = c_sigma(i) + t - p_i                       slot vector (m)
+    K   = max(1, ceil(max_j |s_j| / (v_max dt)))     steps left for the farthest robot
+    v_i = s_i / (K dt)                               |v_i| <= v_max, exact landing at K = 1
+
+``sigma`` is the pipeline's shared assignment (least summed squares, with
+hysteresis), which does not depend on ``t``. The frame is a blend of two
+centres of the displacements ``d_i = p_i - c_sigma(i)``::
+
+    t = t_mec + travel_weight * (t_centroid - t_mec)
+
+``t_mec`` is the centre of the smallest circle enclosing the ``d_i`` (the frame
+of fewest steps for this assignment: the farthest robot is as near as it can
+be), ``t_centroid`` their mean (the team's centroid stays where it is; close
+to the frame of least travel). **Why no state is needed:** under the plan every
+robot moves along ``p_i -> c_sigma(i) + t`` at a common fraction of its way, so
+the displacements shrink homothetically towards ``t``; both centres, and so any
+blend of them, are equivariant under that homothety, hence the next step
+recomputes the very same ``t`` and ``sigma`` (the squared-distance assignment
+of a linear interpolation towards its own optimum stays optimal). The frame is
+"fixed once per pattern" by construction, and re-solved from the poses alone
+whenever the team, the pattern or the safety filter moves a robot off the
+plan: a robot process, ``eval`` and the world compute the same numbers from the
+same poses (:func:`runtime.decision.decide_batch` and
+:class:`runtime.decision.Controller` call :func:`frame_plan` alike).
+
+Observation. A team rule reads what every robot already observes (all the
+team's positions), the pattern and the shared assignment, through the decision
+pipeline's ``team_velocities`` hook instead of ``act(obs)``; its ``act`` on a
+general observation row is ``rule:assign``'s (the only thing one row allows).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+from runtime.brain_manifest import BrainManifest
+from runtime.formation import _min_enclosing_circle
+from runtime.observation import ObservationSpec
+from runtime.types import Array, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+__all__ = ["FRAME_RULES", "FrameRule", "frame_plan", "straight_to_slot"]
+
+_STEP_TOL: Final = 1e-9
+"""Relative slack in ``ceil(distance / reach)``: a distance that is a whole number
+of steps up to rounding counts as that many steps, not one more."""
+
+FRAME_RULES: Final[dict[str, float]] = {
+    "rule:frame": 0.0,
+    "rule:frame-travel": 1.0,
+}
+"""Each team rule's ``travel_weight``: 0 the frame of fewest steps, 1 the
+centroid frame (less travel, a step or a few more)."""
+
+
+def straight_to_slot(obs: NDArray[Any], world: WorldConfig = DEFAULT_WORLD) -> Array:
+    """``rule:assign`` on general observation rows: slot vector / dt, clipped to v_max.
+
+    ``obs`` (m, dim) -> (m, 2) m/s.
+    """
+    v = np.asarray(obs[:, 0:2], dtype=np.float64) / world.dt_s
+    sp = np.hypot(v[:, 0], v[:, 1])
+    scale = np.where(sp > world.v_max_mps, world.v_max_mps / np.maximum(sp, 1e-300), 1.0)
+    out: Array = v * scale[:, None]
+    return out
+
+
+def frame_plan(
+    pos: Array,
+    pattern: Array,
+    slots: IntArray,
+    travel_weight: float,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> Array:
+    """Every robot's velocity under the synchronised plan in the blended frame.
+
+    ``pos`` (E, n, 2) positions (m), ``pattern`` (E, n, 2) the pattern (any
+    translation), ``slots`` (E, n) the shared assignment, ``travel_weight`` in
+    [0, 1] (see the module docstring). Returns (E, n, 2) m/s, each of norm
+    <= v_max; all robots of a team land on their slots at the same step.
+    """
+    p = np.asarray(pos, dtype=np.float64)
+    target = np.take_along_axis(np.asarray(pattern, dtype=np.float64), slots[..., None], axis=-2)
+    d = p - target  # (E, n, 2) displacement from the slot at t = 0
+    E = p.shape[0]
+    t = d.mean(axis=1)  # (E, 2) centroid frame
+    if travel_weight < 1.0:
+        for e in range(E):  # Welzl's circle is a Python loop: one call per team
+            c, _ = _min_enclosing_circle(d[e])
+            t[e] = c + travel_weight * (t[e] - c)
+    s = t[:, None, :] - d  # slot vector (m)
+    dist = np.hypot(s[..., 0], s[..., 1])
+    reach = world.v_max_mps * world.dt_s
+    k = np.maximum(np.ceil(dist.max(axis=1) / reach - _STEP_TOL), 1.0)  # (E,) steps left
+    out: Array = s / (k * world.dt_s)[:, None, None]
+    return out
+
+
+class FrameRule:
+    """A team rule (``rule:frame``, ``rule:frame-travel``): :func:`frame_plan` in the pipeline.
+
+    ``team_velocities(pos, pattern, slots)`` -> (E, n, 2) m/s is what
+    :mod:`runtime.decision` calls; ``act`` (a general observation row ->
+    ``rule:assign``'s velocity) is only the per-row fallback of the Brain
+    interface.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        world: WorldConfig = DEFAULT_WORLD,
+        k_neighbours: int = 6,
+        travel_weight: float | None = None,
+    ) -> None:
+        """``travel_weight`` (default: the named rule's) places any frame between the two
+        ends, e.g. to trace the frontier (``benchmarks/frontier.py``)."""
+        if name not in FRAME_RULES:
+            raise ValueError(f"unknown team rule '{name}' (known: {', '.join(FRAME_RULES)})")
+        self.travel_weight = FRAME_RULES[name] if travel_weight is None else float(travel_weight)
+        self.brain_id = name if travel_weight is None else f"{name}@{self.travel_weight:g}"
+        self.spec = ObservationSpec("general", k_neighbours=k_neighbours)
+        self.manifest: BrainManifest | None = None
+        self._world = world
+
+    def act(self, obs: NDArray[Any]) -> Array:
+        return straight_to_slot(np.asarray(obs), self._world)
+
+    def team_velocities(self, pos: Array, pattern: Array, slots: IntArray) -> Array:
+        """(E, n, 2) positions, (E, n, 2) pattern, (E, n) slots -> (E, n, 2) m/s."""
+        return frame_plan(pos, pattern, slots, self.travel_weight, self._world)
+
