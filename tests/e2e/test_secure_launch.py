@@ -1,4 +1,4 @@
-"""The demo as a user runs it: secure by default, brains chosen per pattern swapped in between phases.
+"""The demo as a user runs it: secure by default, each pattern's brain swapped in between phases.
 
 `patternrl launch` with no security option makes the run's certificates, so the world, every robot
 and the operator speak mutual TLS under Zenoh access control; the world's brain swaps between
