@@ -76,6 +76,8 @@ class EvalResult:
     safety_interventions: float
     wall_s: float
     min_separation_m: float = math.nan
+    orca: dict[str, float] | None = None
+    """The safety filter's parameters (None with the filter off)."""
     episode_stats: dict[str, list[float]] = field(default_factory=dict, repr=False)
     """Per episode (index e = env e): formed, steps, travel_m, lower_bound_steps,
     lower_bound_travel_m, collisions, min_separation_m."""
@@ -95,6 +97,7 @@ class EvalResult:
             "seeds": [self.seed],
             "seeding": "episode e is the first episode of env e of BatchWorld(seed)",
             "safety": self.safety,
+            **({"orca": self.orca} if self.orca is not None else {}),
             **{
                 k: d[k]
                 for k in (
@@ -192,6 +195,7 @@ def evaluate_brain(
         episodes=E,
         seed=seed,
         safety="orca" if safety is not None else "off",
+        orca=asdict(safety) if safety is not None else None,
         success_rate=float(ok.mean()),
         formed_rate=float(formed.mean()),
         collisions=int(collisions.sum()),

@@ -5,11 +5,13 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
+from typing import Any
 
 import onnx
 import pytest
 
 from runtime.brain import load_brain
+from runtime.safety import OrcaParams
 from trainer.evaluate import evaluate_brain
 
 EXPORTS = Path(__file__).resolve().parents[2] / "exports"
@@ -36,13 +38,18 @@ def test_brain_is_valid_and_manifest_is_consistent(path: Path) -> None:
     assert ev["episodes"] == 100 and ev["safety"] == "orca"
 
 
+def _orca(manifest: dict[str, Any]) -> OrcaParams:
+    """The safety filter the manifest's figures were measured with."""
+    return OrcaParams(**manifest["evaluation"]["orca"])
+
+
 @pytest.mark.parametrize("path", BRAINS, ids=lambda p: p.stem)
 def test_fresh_seeds_agree_with_the_manifest(path: Path) -> None:
     """12 episodes on seeds it was neither trained nor evaluated on, ORCA on, as a robot runs it."""
     manifest = json.loads(path.with_suffix(".json").read_text())
     pattern = manifest["pattern"] or "random"
     res = evaluate_brain(load_brain(str(path)), pattern, manifest["n_robots"], 12, seed=424242,
-                         progress=False)
+                         safety=_orca(manifest), progress=False)
     claimed = manifest["evaluation"]["success_rate"]
     # 12 episodes: a brain claiming 100 % may miss one; a brain claiming 0 % must not form.
     assert abs(res.success_rate - claimed) <= 0.25, (res.success_rate, claimed)
@@ -56,7 +63,7 @@ def test_manifest_evaluation_is_reproduced_exactly() -> None:
     manifest = json.loads(path.with_suffix(".json").read_text())
     ev = manifest["evaluation"]
     res = evaluate_brain(load_brain(str(path)), "circle", 10, ev["episodes"], seed=ev["seeds"][0],
-                         progress=False)
+                         safety=_orca(manifest), progress=False)
     assert res.success_rate == ev["success_rate"]
     assert res.collisions == ev["collisions"]
     # The lower-bound estimate gained starts after the brains were evaluated, so a bound can
