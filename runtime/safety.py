@@ -89,7 +89,7 @@ class OrcaParams:
     time_horizon_s: float = 0.75
     """ORCA tau for other robots: avoid collisions this far ahead. 0.75 s with a
     2 cm margin is the least-cost point of a measured sweep that keeps 2R, no
-    collision and no stalled crowd (``benchmarks/orca_sweep.py``, docs/results.md)."""
+    collision and no stalled crowd (``benchmarks/orca_sweep.py``, docs/frontier.md)."""
     radius_margin_m: float = 0.02
     """Added to R: the pair's combined radius is ``2 * (R + margin)``."""
     max_neighbours: int = 10
