@@ -73,13 +73,18 @@ from runtime.observation import ObservationSpec, general_observation_env_last, o
 from runtime.patterns import make_pattern, random_pattern
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-from trainer.contacts import move
+from trainer.contacts import CONTACT_OVER_RELAX, CONTACT_SWEEPS, CONTACT_TOL_M, move
 from trainer.reward import (
     DEFAULT_REWARD,
     PAPER_REWARD,
     RewardConfig,
     step_reward,
 )
+
+try:  # the compiled step (numba, in the ``train`` extra); the numpy path is the reference
+    from trainer import kernels as _kernels
+except ImportError:  # pragma: no cover - numba missing: the numpy path alone
+    _kernels = None  # type: ignore[assignment]
 
 RANDOM_PATTERN = "random"
 
@@ -161,6 +166,7 @@ class BatchWorld:
         step_limit: int | None = None,
         build_obs: bool = True,
         first_env: int = 0,
+        compiled: bool = True,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -191,6 +197,8 @@ class BatchWorld:
         if self.step_limit < 1:
             raise ValueError(f"step_limit must be >= 1, got {self.step_limit}")
         self.build_obs = build_obs
+        # compiled kernels (trainer.kernels) where numba is installed: the same numbers
+        self.compiled = bool(compiled and _kernels is not None)
         self.obs_dim: int = obs_spec.dim if build_obs else 0
 
         E, N = n_envs, n_robots
@@ -432,6 +440,11 @@ class BatchWorld:
             G = self._G if ids is None else self._G[:, :, ids]
             X_prev = self.frames[sel, 1].transpose(2, 1, 0)
             k = self.obs_spec.k_neighbours
+            if self.compiled:
+                reach = self.world.v_max_mps * self.world.dt_s
+                Xp = np.ascontiguousarray(X_prev)  # a contiguous copy pays for itself
+                out: F32Array = _kernels.general_observation(X, Xp, G, k, self.world.dt_s, reach)
+                return out
             return general_observation_env_last(X, X_prev, G, k, self.world)
         obs = observe(self.obs_spec, self.frames[sel], None, None, self.world)
         return obs.astype(np.float32)
@@ -474,6 +487,23 @@ class BatchWorld:
         self.contact_fallbacks += fallbacks
         moved = X1 - X0
         self._travel += np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
+        return X1, hits, collisions
+
+    def _move_compiled(self, actions: NDArray[np.floating]) -> tuple[Array, IntArray, IntArray]:
+        """``_velocities`` and ``_move`` in one compiled pass (:func:`trainer.kernels.move_step`)."""
+        shape = (self.n_envs, self.n_robots, 2)
+        a = np.asarray(actions)
+        if a.shape != shape:
+            raise ValueError(f"actions must be {shape}, got {a.shape}")
+        if a.dtype != np.float32:
+            a = a.astype(np.float64, copy=False)
+        w = self.world
+        X1, hits, collisions, fallbacks = _kernels.move_step(
+            a, self._X, self._travel, w.v_max_mps, w.dt_s, self._two_r, CONTACT_TOL_M,
+            CONTACT_SWEEPS, CONTACT_OVER_RELAX,
+        )
+        self.episode_collisions += collisions
+        self.contact_fallbacks += fallbacks
         return X1, hits, collisions
 
     def _assign(self, X: Array) -> tuple[IntArray, Array, Array]:
@@ -553,10 +583,16 @@ class BatchWorld:
 
         Shapes inside: robot-major (2, N, E) and (N, E); returned (E, N, ...).
         """
-        V = self._velocities(actions)  # 1. actions -> velocities
-        X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
+        if self.compiled:  # 1-4 in two compiled passes over the envs, the same numbers
+            X1, hits, collisions = self._move_compiled(actions)
+            slots, G, dist2, _ = _kernels.assign_env_last(
+                X1, self._Cc, self._C, self._slots, self._potentials
+            )
+        else:
+            V = self._velocities(actions)  # 1. actions -> velocities
+            X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
+            slots, G, dist2 = self._assign(X1)  # 4. shared assignment
         P1 = _env_major(X1)
-        slots, G, dist2 = self._assign(X1)  # 4. shared assignment
         error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
         formed = dist2.max(axis=0) <= self._formed_tol2
         cfg, reach = self.reward_config, self._reach  # 5. reward, (N, E)
