@@ -40,6 +40,8 @@ from numba.core.errors import NumbaWarning
 from runtime.assignment import CERTIFY_ROUNDS
 from runtime.formation import HYSTERESIS_ABS_M2, HYSTERESIS_REL
 from runtime.types import Array, BoolArray, F32Array, IntArray
+from runtime.world_config import WorldConfig
+from trainer.contacts import CONTACT_OVER_RELAX, CONTACT_SWEEPS, CONTACT_TOL_M
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -483,7 +485,33 @@ def move_step(
     return X1, hits, pairs, fallbacks
 
 
+def move(
+    actions: Any, X0: Array, travel: Array, world: WorldConfig
+) -> tuple[Array, IntArray, IntArray, int]:
+    """:func:`move_step` with the world's constants; ``actions`` must be (E, N, 2)."""
+    shape = (X0.shape[2], X0.shape[1], 2)
+    a = np.asarray(actions)
+    if a.shape != shape:
+        raise ValueError(f"actions must be {shape}, got {a.shape}")
+    if a.dtype != np.float32:
+        a = a.astype(np.float64, copy=False)
+    out: tuple[Array, IntArray, IntArray, int] = move_step(
+        a, X0, travel, world.v_max_mps, world.dt_s, world.min_separation_m, CONTACT_TOL_M,
+        CONTACT_SWEEPS, CONTACT_OVER_RELAX,
+    )
+    return out
+
+
 # -------------------------------------------------------------- observation
+
+
+def observe_general(X: Array, X_prev: Array, G: Array, k: int, world: WorldConfig) -> F32Array:
+    """:func:`general_observation` with the world's constants, (E, N, 6 + 5k) float32."""
+    reach = world.v_max_mps * world.dt_s  # as the runtime builder computes it
+    Xp = np.ascontiguousarray(X_prev)  # a contiguous copy pays for itself in the loop
+    out: F32Array = general_observation(X, Xp, G, k, world.dt_s, reach)
+    return out
+
 
 
 @_jit
@@ -562,6 +590,8 @@ __all__ = [
     "assign_step",
     "general_observation",
     "lsap",
+    "move",
     "move_step",
+    "observe_general",
     "pairwise_sum",
 ]
