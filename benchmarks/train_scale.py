@@ -2,12 +2,16 @@
 
 Rows, all measured in one run, side by side:
 
-* ``world``: ``BatchWorld.step`` at E envs x N robots (median wall time of
-  ``--repeats`` runs of ``--steps`` steps, random actions in the v_max disc),
-  with and without the general observation, for the *former* step (scipy's
-  Hungarian per env every step; the observation built in the (E, N, ...)
-  layout) and the *current* one (the batched proof of optimality, scipy only
-  where it fails; the observation built env-last). Same values, bit for bit.
+* ``world``: ``BatchWorld.step`` at E envs x N robots (median of
+  ``--repeats`` runs of ``--steps`` steps, random actions in the v_max disc,
+  the three worlds timed in turn within each repeat so they share the load),
+  with and without the general observation, for three steps giving the same
+  values bit for bit: *former* (scipy's Hungarian per env every step, the
+  observation in the (E, N, ...) layout), *numpy* (the batched proof of
+  optimality, scipy only where it fails, the observation env-last;
+  ``compiled=False``) and *compiled* (:mod:`trainer.kernels`, numba; the
+  default). Each figure in wall time and in this thread's CPU time (the two
+  differ when other processes share the cores).
 * ``train``: agent-steps/s of whole iterations (rollout + update + held-out
   evaluation) for ``--train-s`` seconds: in-process, then 1 and 2 Ray workers
   on a local instance (Ray's own start is not counted; the actors' is).
@@ -31,7 +35,7 @@ A model of scaling (why the figures look as they do)
     workers also compete with the driver for the same cores: expect K = 1 to
     cost its communication overhead and K = 2 to gain little.
 
-Usage: ``python benchmarks/train_scale.py [--json] [--train-s 30] [--ttf-budget-s 120]``
+Usage: ``python benchmarks/train_scale.py [--json] [--train-s 30] [--ttf-budget-s 300]``
 """
 
 from __future__ import annotations
@@ -55,6 +59,7 @@ from trainer.train import RunPlan, train
 from trainer.training_world import BatchWorld
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
+SPEC = ObservationSpec("general")
 
 
 class FormerWorld(BatchWorld):
@@ -82,10 +87,13 @@ class FormerWorld(BatchWorld):
         return observe(self.obs_spec, self.frames[sel], goals, None, self.world).astype(np.float32)
 
 
-def world_rate(cls: type[BatchWorld], E: int, N: int, obs: bool, steps: int, repeats: int
-               ) -> float:
-    """Median agent-steps/s of ``cls.step`` (random actions)."""
-    w = cls(E, N, PATTERNS, ObservationSpec("general"), seed=0, build_obs=obs)
+def world_rates(E: int, N: int, obs: bool, steps: int, repeats: int) -> dict[str, dict[str, int]]:
+    """Median agent-steps/s (wall and thread CPU) of each step, timed in turn (random actions)."""
+    worlds = {
+        "former": FormerWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs, compiled=False),
+        "numpy": BatchWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs, compiled=False),
+        "compiled": BatchWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs),
+    }
     rng = np.random.default_rng(0)
 
     def acts() -> list[Array]:
@@ -96,16 +104,21 @@ def world_rate(cls: type[BatchWorld], E: int, N: int, obs: bool, steps: int, rep
             out.append(np.stack([r * np.cos(ang), r * np.sin(ang)], axis=-1))
         return out
 
-    for a in acts():  # warm up into mid-episode states
-        w.step(a)
-    times = []
+    for a in acts():  # warm up into mid-episode states (and compile)
+        for w in worlds.values():
+            w.step(a)
+    wall: dict[str, list[float]] = {k: [] for k in worlds}
+    cpu: dict[str, list[float]] = {k: [] for k in worlds}
     for _ in range(repeats):
         A = acts()
-        t0 = time.perf_counter()
-        for a in A:
-            w.step(a)
-        times.append((time.perf_counter() - t0) / steps)
-    return E * N / statistics.median(times)
+        for name, w in worlds.items():
+            t0, c0 = time.perf_counter(), time.thread_time()
+            for a in A:
+                w.step(a)
+            wall[name].append((time.perf_counter() - t0) / steps)
+            cpu[name].append((time.thread_time() - c0) / steps)
+    return {k: {"wall": round(E * N / statistics.median(wall[k])),
+                "cpu": round(E * N / statistics.median(cpu[k]))} for k in worlds}
 
 
 def train_rate(mode: RolloutMode, seconds: float, cfg: TrainConfig) -> dict[str, Any]:
@@ -133,18 +146,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=50, help="world steps per timed run")
     ap.add_argument("--repeats", type=int, default=7, help="timed world runs (median)")
     ap.add_argument("--train-s", type=float, default=30.0, help="seconds of training per mode")
-    ap.add_argument("--ttf-budget-s", type=float, default=120.0,
+    ap.add_argument("--ttf-budget-s", type=float, default=300.0,
                     help="time-to-95 %% budget per mode; 0 skips")
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="Ray workers to try")
     ap.add_argument("--no-ray", action="store_true", help="in-process rows only")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args(argv)
 
-    world = {}
-    for obs in (False, True):
-        for name, cls in (("former", FormerWorld), ("current", BatchWorld)):
-            world[f"{name}/{'general' if obs else 'none'}"] = round(
-                world_rate(cls, args.envs, args.robots, obs, args.steps, args.repeats))
+    load_world = round(os.getloadavg()[0], 2)
+    world = {("general" if obs else "none"): world_rates(args.envs, args.robots, obs, args.steps,
+                                                         args.repeats)
+             for obs in (False, True)}
     cfg = TrainConfig()
     modes = [("in-process", IN_PROCESS)]
     if not args.no_ray:
@@ -152,26 +164,36 @@ def main(argv: list[str] | None = None) -> int:
     training = {}
     for label, mode in modes:
         row = train_rate(mode, args.train_s, cfg)
+        row["load_avg_1min"] = round(os.getloadavg()[0], 2)
         if args.ttf_budget_s > 0:
             row["to_95"] = time_to_95(mode, args.ttf_budget_s, cfg)
+            row["to_95"]["load_avg_1min"] = round(os.getloadavg()[0], 2)
         training[label] = row
+    base = training["in-process"]["agent_steps_per_s"]
+    for row in training.values():  # Ray's cost against in-process, same config and cores
+        row["overhead_vs_in_process"] = round(1.0 - row["agent_steps_per_s"] / max(base, 1), 3)
     out = {"benchmark": "train_scale", "cpus": os.cpu_count(),
-           "load_avg_1min": round(os.getloadavg()[0], 2), "E": args.envs, "N": args.robots,
+           "load_avg_1min_world": load_world, "E": args.envs, "N": args.robots,
            "world_agent_steps_per_s": world, "training": training}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
-    print(f"world, E={args.envs} N={args.robots}, agent-steps/s (median of {args.repeats})")
-    for obs in ("none", "general"):
-        f, c = world[f"former/{obs}"], world[f"current/{obs}"]
-        print(f"  obs={obs:8} former {f:>10,}  current {c:>10,}  x{c / f:.2f}")
-    print(f"training, {cfg.n_envs} envs x {cfg.n_robots} robots, {os.cpu_count()} CPUs, "
-          f"load {out['load_avg_1min']}")
+    print(f"world, E={args.envs} N={args.robots}, agent-steps/s (median of {args.repeats}; "
+          f"wall / thread CPU), {os.cpu_count()} CPUs, 1-min load {load_world}")
+    for obs, rates in world.items():
+        f, c = rates["former"], rates["compiled"]
+        cells = "  ".join(f"{k} {v['wall']:>10,} / {v['cpu']:>10,}" for k, v in rates.items())
+        print(f"  obs={obs:8} {cells}  compiled/former x{c['wall'] / f['wall']:.2f} wall, "
+              f"x{c['cpu'] / f['cpu']:.2f} CPU")
+    print(f"training, {cfg.n_envs} envs x {cfg.n_robots} robots, general observation")
     for label, row in training.items():
         ttf = row.get("to_95")
         t = ("" if ttf is None else f"  to 95 %: {ttf['seconds']} s" if ttf["reached"]
              else f"  not 95 % in {ttf['seconds']} s (best {100 * ttf['best_success']:.0f} %)")
-        print(f"  {label:11} {row['agent_steps_per_s']:>9,} agent-steps/s{t}")
+        t += "" if ttf is None else f" (load {ttf['load_avg_1min']})"
+        print(f"  {label:11} {row['agent_steps_per_s']:>9,} agent-steps/s "
+              f"(overhead {100 * row['overhead_vs_in_process']:+.0f} %, load "
+              f"{row['load_avg_1min']}){t}")
     return 0
 
 
