@@ -41,7 +41,7 @@ from runtime.assignment import CERTIFY_ROUNDS
 from runtime.formation import HYSTERESIS_ABS_M2, HYSTERESIS_REL
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import WorldConfig
-from trainer.contacts import CONTACT_OVER_RELAX, CONTACT_SWEEPS, CONTACT_TOL_M
+from trainer import contacts
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -268,11 +268,15 @@ def assign_step(
     cand = np.empty(n)
     solved = 0
     for e in range(E):
-        tx = X[0, 0, e]
-        ty = X[1, 0, e]
-        for i in range(1, n):
-            tx += X[0, i, e]
-            ty += X[1, i, e]
+        if E == 1:  # numpy reduces a lone env's robots along its inner loop: pairwise
+            tx = pairwise_sum(X[0, :, 0])
+            ty = pairwise_sum(X[1, :, 0])
+        else:  # and several envs' robots one row after another
+            tx = X[0, 0, e]
+            ty = X[1, 0, e]
+            for i in range(1, n):
+                tx += X[0, i, e]
+                ty += X[1, i, e]
         mx = tx / n
         my = ty / n
         for i in range(n):
@@ -436,8 +440,8 @@ def move_step(
     fallbacks = 0
     for e in range(E):
         for i in range(n):
-            vx = float(actions[e, i, 0])
-            vy = float(actions[e, i, 1])
+            vx = actions[e, i, 0]
+            vy = actions[e, i, 1]
             s2 = vx * vx + vy * vy
             if not np.isfinite(s2):
                 vx = 0.0
@@ -493,11 +497,10 @@ def move(
     a = np.asarray(actions)
     if a.shape != shape:
         raise ValueError(f"actions must be {shape}, got {a.shape}")
-    if a.dtype != np.float32:
-        a = a.astype(np.float64, copy=False)
+    a = a.astype(np.float64, copy=False)  # as the numpy path: float32 actions widened exactly
     out: tuple[Array, IntArray, IntArray, int] = move_step(
-        a, X0, travel, world.v_max_mps, world.dt_s, world.min_separation_m, CONTACT_TOL_M,
-        CONTACT_SWEEPS, CONTACT_OVER_RELAX,
+        a, X0, travel, world.v_max_mps, world.dt_s, world.min_separation_m, contacts.CONTACT_TOL_M,
+        contacts.CONTACT_SWEEPS, contacts.CONTACT_OVER_RELAX,
     )
     return out
 

@@ -174,11 +174,14 @@ def test_crowd_driven_to_centre_never_interpenetrates() -> None:
     assert saw > 100  # the crowd did push
 
 
-def test_jam_that_does_not_clear_holds_robots_still(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("compiled", [False, True])
+def test_jam_that_does_not_clear_holds_robots_still(
+    monkeypatch: pytest.MonkeyPatch, compiled: bool
+) -> None:
     import trainer.contacts as world_module
 
     monkeypatch.setattr(world_module, "CONTACT_SWEEPS", 1)  # too few sweeps for a chain
-    w = make(n_envs=1, n_robots=4, build_obs=False)
+    w = make(n_envs=1, n_robots=4, build_obs=False, compiled=compiled)
     start = np.array([[[0.0, 0.0], [TWO_R + 0.01, 0.0], [2 * TWO_R + 0.02, 0.0], [5.0, 5.0]]])
     w.reset_to(start)
     a = np.zeros((1, 4, 2))
