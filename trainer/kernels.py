@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from numba import njit
@@ -52,10 +52,10 @@ def _jit(fn: F) -> F:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NumbaWarning)
-            out: F = njit(cache=True)(fn)
+            out = njit(cache=True)(fn)
     except RuntimeError:  # "cannot cache function ...: no locator available"
         out = njit(fn)
-    return out
+    return cast(F, out)
 
 
 # ------------------------------------------------------------------ helpers
@@ -85,14 +85,15 @@ def pairwise_sum(a: Array) -> float:
             r6 += a[i + 6]
             r7 += a[i + 7]
             i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        acc: float = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
         while i < n:
-            res += a[i]
+            acc += a[i]
             i += 1
-        return res
+        return acc
     n2 = n // 2
     n2 -= n2 % 8
-    return pairwise_sum(a[:n2]) + pairwise_sum(a[n2:])
+    total: float = pairwise_sum(a[:n2]) + pairwise_sum(a[n2:])
+    return total
 
 
 # --------------------------------------------------------------- assignment
