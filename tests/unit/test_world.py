@@ -376,8 +376,9 @@ def test_formed_bonus_once_on_formation() -> None:
 # ------------------------------------------------------------- observation
 
 
-def test_general_observation_matches_runtime_builder() -> None:
-    w = make(n_envs=3, n_robots=7)
+@pytest.mark.parametrize("compiled", [True, False])
+def test_general_observation_matches_runtime_builder(compiled: bool) -> None:
+    w = make(n_envs=3, n_robots=7, compiled=compiled)
     assert w.obs_dim == GENERAL.dim
     rng = np.random.default_rng(0)
     for _ in range(3):
@@ -387,6 +388,9 @@ def test_general_observation_matches_runtime_builder() -> None:
     np.testing.assert_allclose(goals, w.goals, rtol=0, atol=1e-12)
     expect = general_observation(w.positions, w.prev_positions, goals, k=4, world=W)
     np.testing.assert_allclose(res.obs, expect.astype(np.float32))
+    # from the world's own slot positions: the runtime builder's numbers, bit for bit
+    same = general_observation(w.positions, w.prev_positions, w.goals, k=4, world=W)
+    assert np.array_equal(res.obs, same.astype(np.float32))
     # the world's error and slot distances are the runtime's
     np.testing.assert_allclose(w.error, formation_error_batch(w.positions, w.pattern, w.slots))
     d = slot_distances(w.positions, w.pattern, w.slots)
