@@ -253,6 +253,7 @@ def assign_step(
     ``potentials`` (N, E) the proof's warm start, updated in place. Returns
     (slots (N, E), slot positions (2, N, E), squared slot distances (N, E),
     envs solved): what ``BatchWorld._assign``'s numpy path gives, bit for bit.
+    A ``previous`` that is not a permutation is replaced by the solver's.
     """
     _, n, E = X.shape
     slots = np.empty((n, E), np.int64)
@@ -308,7 +309,9 @@ def assign_step(
                 slots[i, e] = prev[i]
         else:
             solved += 1
-            lsap(cost, fresh)
+            if not lsap(cost, fresh):  # non-finite costs: no solution to take
+                for i in range(n):
+                    fresh[i] = prev[i]
             for i in range(n):
                 vals[i] = cost[i, fresh[i]]
             new = pairwise_sum(vals)
