@@ -1,29 +1,27 @@
 """Compiled kernels of the training world's step (numba), one loop over envs each.
 
 At E = 64 envs x N = 10 robots the numpy step spends its time in call
-overhead: dozens of numpy calls on (N, N, E) arrays, and one scipy call per
-env whose assignment is not proven. These kernels do the same arithmetic in
-one compiled loop over envs, with the same IEEE operations in the same order
-as the numpy path, so a world stepped with them gives the same numbers bit for
-bit (tests/unit/test_kernels.py holds both equal; the robot keeps the numpy
-path: ``runtime/`` never imports numba).
+overhead (dozens of numpy calls on small arrays, one scipy call per env whose
+assignment is not proven). These kernels do the same IEEE operations in the
+same order in one compiled loop over envs, so a world stepped with them gives
+the numpy path's numbers bit for bit (tests/unit/test_kernels.py). The robot
+keeps the numpy path: ``runtime/`` never imports numba.
 
 Layouts are the training world's: positions robot-major (2, N, E), per-robot
 values (N, E), per-env values (E,). Units: metres, seconds, m/s, m^2.
 
-The assignment (:func:`assign_step`) is exact, not approximate: each env's
-previous assignment is kept where a Bellman-Ford pass over its exchange graph
-proves it within half the hysteresis margin of optimal (as
-:func:`runtime.assignment.certify_assignment` does), and elsewhere the env is
-solved by :func:`lsap`, the shortest augmenting path algorithm (Crouse 2016)
-with scipy's scan order, so ties break exactly as
-``scipy.optimize.linear_sum_assignment`` breaks them, and then the hysteresis
-rule (:func:`runtime.formation.keeps_previous`) is applied to sums taken in
-numpy's order. The result is what solving every env with scipy and applying
-the rule gives.
+The assignment (:func:`assign_step`) is exact: an env keeps its previous
+slots where a Bellman-Ford pass over the exchange graph proves them within
+half the hysteresis margin of optimal (the proof of
+:func:`runtime.assignment.certify_assignment`); elsewhere :func:`lsap`, the
+shortest augmenting path algorithm (Crouse 2016) in scipy's scan order,
+solves it, ties broken as ``scipy.optimize.linear_sum_assignment`` breaks
+them, and the hysteresis rule (:func:`runtime.formation.keeps_previous`) is
+applied to sums taken in numpy's order.
 
-Compiled code is cached on disk (``cache=True``, in ``__pycache__``); where
-that is not writable numba compiles in memory instead, once per process.
+Compiled code is cached on disk (``cache=True``, in ``__pycache__`` or
+``NUMBA_CACHE_DIR``); where none is writable numba compiles in memory, once
+per process.
 """
 
 from __future__ import annotations
@@ -344,13 +342,12 @@ def assign_step(
 
 
 def assign_env_last(
-    cost_positions: Array, Cc: Array, C: Array, previous: IntArray, potentials: Array
+    X: Array, Cc: Array, C: Array, previous: IntArray, potentials: Array
 ) -> tuple[IntArray, Array, Array, int]:
     """:func:`assign_step` with the world's hysteresis constants and proof rounds."""
-    out: tuple[IntArray, Array, Array, int] = assign_step(
-        cost_positions, Cc, C, previous, potentials, HYSTERESIS_REL, HYSTERESIS_ABS_M2,
-        CERTIFY_ROUNDS,
-    )
+    rel, floor = HYSTERESIS_REL, HYSTERESIS_ABS_M2
+    out: tuple[IntArray, Array, Array, int]
+    out = assign_step(X, Cc, C, previous, potentials, rel, floor, CERTIFY_ROUNDS)
     return out
 
 
@@ -516,8 +513,7 @@ def observe_general(X: Array, X_prev: Array, G: Array, k: int, world: WorldConfi
     """:func:`general_observation` with the world's constants, (E, N, 6 + 5k) float32."""
     reach = world.v_max_mps * world.dt_s  # as the runtime builder computes it
     Xp = np.ascontiguousarray(X_prev)  # a contiguous copy pays for itself in the loop
-    out: F32Array = general_observation(X, Xp, G, k, world.dt_s, reach)
-    return out
+    return general_observation(X, Xp, G, k, world.dt_s, reach)  # type: ignore[no-any-return]
 
 
 
