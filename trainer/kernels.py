@@ -513,7 +513,7 @@ def observe_general(X: Array, X_prev: Array, G: Array, k: int, world: WorldConfi
     """:func:`general_observation` with the world's constants, (E, N, 6 + 5k) float32."""
     reach = world.v_max_mps * world.dt_s  # as the runtime builder computes it
     Xp = np.ascontiguousarray(X_prev)  # a contiguous copy pays for itself in the loop
-    return general_observation(X, Xp, G, k, world.dt_s, reach)  # type: ignore[no-any-return]
+    return general_observation(X, Xp, G, k, world.dt_s, reach)
 
 
 
