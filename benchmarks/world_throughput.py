@@ -9,16 +9,18 @@ when other processes share the machine). Rows:
 
 * ``obs=general`` builds the general observation every step (what the trainer
   uses); ``obs=none`` skips it (``build_obs=False``): the world's own cost.
+* ``step=numpy`` is the numpy path (``compiled=False``), ``step=compiled``
+  the default (:mod:`trainer.kernels`, numba; the same numbers bit for bit),
+  timed one after the other on the same seed and actions.
 * ``policy=random``: uniform random velocities in the v_max disc, like an
   untrained policy. ``policy=to-slot``: full speed straight at the slot, with
   a little noise and no avoidance: robots collide and jam all the time, the
   contact-heavy worst case.
 
 Side by side, after every run and on the same world state, the benchmark times
-``assign_slots_batch`` over all E envs (the scipy Hungarian per env that every
-step calls): ``x_assign`` is the step's cost in units of it, a ratio that
-carries over between machines and loads (the budget note in issue 2 measured
-the assignment at ~290 us for E=64, N=10 on a quiet machine).
+``assign_slots_batch(previous=...)`` over all E envs (the numpy assignment:
+the batched proof, scipy where it fails): ``x_assign`` is the step's cost in
+units of it, a ratio that carries over between machines and loads.
 
 Usage: ``python benchmarks/world_throughput.py [--envs 64] [--robots 10 20] [--json]``
 """
@@ -47,6 +49,7 @@ PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 class Row:
     n_envs: int
     n_robots: int
+    step: str
     obs: str
     policy: str
     wall_us_per_step: float
@@ -72,10 +75,12 @@ def _policy(name: str, w: BatchWorld, rng: np.random.Generator) -> Array:
 
 
 def time_world(
-    n_envs: int, n_robots: int, obs: str, policy: str, steps: int, repeats: int, seed: int = 0
+    n_envs: int, n_robots: int, obs: str, policy: str, steps: int, repeats: int, seed: int = 0,
+    step: str = "compiled",
 ) -> Row:
     w = BatchWorld(
-        n_envs, n_robots, PATTERNS, ObservationSpec("general"), seed=seed, build_obs=obs != "none"
+        n_envs, n_robots, PATTERNS, ObservationSpec("general"), seed=seed,
+        build_obs=obs != "none", compiled=step == "compiled",
     )
     rng = np.random.default_rng(seed)
     for _ in range(100):  # warm up into mid-episode states
@@ -99,6 +104,7 @@ def time_world(
     return Row(
         n_envs,
         n_robots,
+        step,
         obs,
         policy,
         round(med_wall * 1e6, 1),
@@ -121,10 +127,11 @@ def main(argv: list[str] | None = None) -> int:
 
     load0 = os.getloadavg()[0]
     rows = [
-        time_world(args.envs, n, obs, policy, args.steps, args.repeats)
+        time_world(args.envs, n, obs, policy, args.steps, args.repeats, step=step)
         for n in args.robots
         for obs in ("none", "general")
         for policy in ("random", "to-slot")
+        for step in ("numpy", "compiled")
     ]
     load1 = os.getloadavg()[0]
     meta = {
@@ -146,14 +153,14 @@ def main(argv: list[str] | None = None) -> int:
         f"{os.cpu_count()} CPUs, 1-min load {load0:.2f} -> {load1:.2f}"
     )
     hdr = (
-        f"{'N':>3} {'obs':>8} {'policy':>8} | {'us/step':>8} {'agent-steps/s':>14} | "
+        f"{'N':>3} {'step':>8} {'obs':>8} {'policy':>8} | {'us/step':>8} {'agent-steps/s':>14} | "
         f"{'CPU us':>8} {'per CPU-s':>12} | {'assign us':>9} {'x assign':>8}"
     )
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
         print(
-            f"{r.n_robots:>3} {r.obs:>8} {r.policy:>8} | {r.wall_us_per_step:>8.0f} "
+            f"{r.n_robots:>3} {r.step:>8} {r.obs:>8} {r.policy:>8} | {r.wall_us_per_step:>8.0f} "
             f"{r.agent_steps_per_s:>14,} | {r.cpu_us_per_step:>8.0f} "
             f"{r.agent_steps_per_cpu_s:>12,} | {r.assign_us:>9.0f} {r.x_assign:>8.2f}"
         )

@@ -1,15 +1,13 @@
 """The training world: E independent envs of N disc robots, batch-first numpy.
 
-Every public array is shaped ``(E, N, ...)`` (envs, robots, ...); nothing loops
-over robots, and the only loop over envs on the hot path is the one inside
-``assign_slots_batch`` (scipy has no batched assignment solver). Units: metres,
-seconds, metres per second.
-
-Inside, the step keeps positions as ``(2, N, E)`` (component, robot, env) and
-pair arrays as ``(N, N, E)``: at these sizes numpy's cost is its inner loops,
-and with the env axis innermost a pairwise difference runs ~5x faster than
-over ``(E, N, N, 2)`` (whose innermost axis has length 2), and a reduction
-over robots ~7x faster than over a short trailing axis (measured here).
+Every public array is shaped ``(E, N, ...)`` (envs, robots, ...). Units:
+metres, seconds, metres per second. Inside, the step keeps positions as
+``(2, N, E)`` (component, robot, env) and pair arrays as ``(N, N, E)``: with
+the env axis innermost numpy's inner loops are long (~5x faster than over
+``(E, N, N, 2)``, measured here). Steps 1-4 and the general observation run
+as compiled loops over envs (:mod:`trainer.kernels`, numba; ``compiled=False``
+keeps the numpy path): the same operations in the same order, so the same
+numbers bit for bit, without numpy's per-call overhead or scipy's per-env call.
 
 Step (``BatchWorld.step``), in order
     1. **Actions** ``(E, N, 2)`` are velocities in m/s. A robot whose action
@@ -38,8 +36,7 @@ Step (``BatchWorld.step``), in order
     7. **Auto-reset.** Envs that are done are reset at once (as gymnasium's
        vector envs do): ``StepResult.obs`` holds the first observation of the
        new episode for them, and ``StepResult.episode`` the finished episodes'
-       statistics, including their last observation (``final_obs``, for
-       bootstrapping the value of a truncated episode).
+       statistics, with their last observation (``final_obs``).
 
 Reward constants: :mod:`trainer.reward` (``RewardConfig``, ``DEFAULT_REWARD``,
 ``PAPER_REWARD``).
@@ -50,12 +47,10 @@ Starts and patterns
     episodes depends on nothing else (not on E, nor on the other envs). With
     ``first_env = a`` the envs are children a, a+1, ...: a world holding envs
     [a, b) of a larger batch (one Ray worker's share) draws what that batch's
-    envs would. A reset
-    draws the pattern (one of the set, uniformly) and then N starts uniform in
-    the arena with pairwise separation >= ``start_separation`` (rejection
-    sampling: every robot too close to a lower-numbered one is redrawn, all at
-    once). Patterns are ``make_pattern(name, N)`` (cached per name); the name
-    ``"random"`` draws a fresh ``random_pattern`` from the env's generator.
+    envs would. A reset draws the pattern (one of the set, uniformly) and then
+    N starts uniform in the arena, pairwise >= ``start_separation`` apart
+    (every robot too close to a lower-numbered one is redrawn). Patterns are
+    ``make_pattern(name, N)`` (cached); ``"random"`` draws a ``random_pattern``.
 """
 
 from __future__ import annotations
@@ -80,6 +75,11 @@ from trainer.reward import (
     RewardConfig,
     step_reward,
 )
+
+try:  # the compiled step (numba, in the ``train`` extra); the numpy path is the reference
+    from trainer import kernels as _kernels
+except ImportError:  # pragma: no cover
+    _kernels = None  # type: ignore[assignment]
 
 RANDOM_PATTERN = "random"
 
@@ -161,6 +161,7 @@ class BatchWorld:
         step_limit: int | None = None,
         build_obs: bool = True,
         first_env: int = 0,
+        compiled: bool = True,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -191,6 +192,8 @@ class BatchWorld:
         if self.step_limit < 1:
             raise ValueError(f"step_limit must be >= 1, got {self.step_limit}")
         self.build_obs = build_obs
+        # compiled kernels (trainer.kernels) where numba is installed: the same numbers
+        self.compiled = bool(compiled and _kernels is not None)
         self.obs_dim: int = obs_spec.dim if build_obs else 0
 
         E, N = n_envs, n_robots
@@ -432,6 +435,8 @@ class BatchWorld:
             G = self._G if ids is None else self._G[:, :, ids]
             X_prev = self.frames[sel, 1].transpose(2, 1, 0)
             k = self.obs_spec.k_neighbours
+            if self.compiled:
+                return _kernels.observe_general(X, X_prev, G, k, self.world)
             return general_observation_env_last(X, X_prev, G, k, self.world)
         obs = observe(self.obs_spec, self.frames[sel], None, None, self.world)
         return obs.astype(np.float32)
@@ -530,33 +535,31 @@ class BatchWorld:
 
     def _finish(self, ended: IntArray, formed: BoolArray, obs: F32Array) -> EpisodeStats:
         """Statistics of the episodes of ``ended`` (before their reset), from this step's state."""
-        P1 = self.frames[:, 0]
+        bounds = self.compute_bounds
         return EpisodeStats(
-            env_ids=ended,
-            formed=formed[ended],
-            steps=self.steps[ended].copy(),
-            travel=self._travel[:, ended].sum(axis=0),
-            collisions=self.episode_collisions[ended].copy(),
-            final_error=self.error[ended].copy(),
-            episode_return=self.episode_return[ended].copy(),
-            pattern_ids=self.pattern_ids[ended].copy(),
-            final_obs=obs[ended],
-            final_positions=P1[ended],
-            lower_bound_steps=self.lower_bound_steps[ended].copy() if self.compute_bounds else None,
-            lower_bound_travel=self.lower_bound_travel[ended].copy()
-            if self.compute_bounds
-            else None,
-        )
+            ended, formed[ended], self.steps[ended], self._travel[:, ended].sum(axis=0),
+            self.episode_collisions[ended], self.error[ended], self.episode_return[ended],
+            self.pattern_ids[ended], obs[ended], self.frames[ended, 0],
+            self.lower_bound_steps[ended] if bounds else None,
+            self.lower_bound_travel[ended] if bounds else None,
+        )  # fancy indexing copies: the statistics do not change with the world
 
     def step(self, actions: NDArray[np.floating]) -> StepResult:
         """Advance every env by one step: the steps of the module docstring, in order.
 
         Shapes inside: robot-major (2, N, E) and (N, E); returned (E, N, ...).
         """
-        V = self._velocities(actions)  # 1. actions -> velocities
-        X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
+        if self.compiled:  # 1-4 in two compiled passes over the envs, the same numbers
+            X1, hits, collisions, falls = _kernels.move(actions, self._X, self._travel, self.world)
+            self.episode_collisions += collisions
+            self.contact_fallbacks += falls
+            K = self._Cc, self._C, self._slots, self._potentials
+            slots, G, dist2, _ = _kernels.assign_env_last(X1, *K)
+        else:
+            V = self._velocities(actions)  # 1. actions -> velocities
+            X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
+            slots, G, dist2 = self._assign(X1)  # 4. shared assignment
         P1 = _env_major(X1)
-        slots, G, dist2 = self._assign(X1)  # 4. shared assignment
         error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
         formed = dist2.max(axis=0) <= self._formed_tol2
         cfg, reach = self.reward_config, self._reach  # 5. reward, (N, E)

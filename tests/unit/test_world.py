@@ -174,11 +174,14 @@ def test_crowd_driven_to_centre_never_interpenetrates() -> None:
     assert saw > 100  # the crowd did push
 
 
-def test_jam_that_does_not_clear_holds_robots_still(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("compiled", [False, True])
+def test_jam_that_does_not_clear_holds_robots_still(
+    monkeypatch: pytest.MonkeyPatch, compiled: bool
+) -> None:
     import trainer.contacts as world_module
 
     monkeypatch.setattr(world_module, "CONTACT_SWEEPS", 1)  # too few sweeps for a chain
-    w = make(n_envs=1, n_robots=4, build_obs=False)
+    w = make(n_envs=1, n_robots=4, build_obs=False, compiled=compiled)
     start = np.array([[[0.0, 0.0], [TWO_R + 0.01, 0.0], [2 * TWO_R + 0.02, 0.0], [5.0, 5.0]]])
     w.reset_to(start)
     a = np.zeros((1, 4, 2))
@@ -373,8 +376,9 @@ def test_formed_bonus_once_on_formation() -> None:
 # ------------------------------------------------------------- observation
 
 
-def test_general_observation_matches_runtime_builder() -> None:
-    w = make(n_envs=3, n_robots=7)
+@pytest.mark.parametrize("compiled", [True, False])
+def test_general_observation_matches_runtime_builder(compiled: bool) -> None:
+    w = make(n_envs=3, n_robots=7, compiled=compiled)
     assert w.obs_dim == GENERAL.dim
     rng = np.random.default_rng(0)
     for _ in range(3):
@@ -384,6 +388,9 @@ def test_general_observation_matches_runtime_builder() -> None:
     np.testing.assert_allclose(goals, w.goals, rtol=0, atol=1e-12)
     expect = general_observation(w.positions, w.prev_positions, goals, k=4, world=W)
     np.testing.assert_allclose(res.obs, expect.astype(np.float32))
+    # from the world's own slot positions: the runtime builder's numbers, bit for bit
+    same = general_observation(w.positions, w.prev_positions, w.goals, k=4, world=W)
+    assert np.array_equal(res.obs, same.astype(np.float32))
     # the world's error and slot distances are the runtime's
     np.testing.assert_allclose(w.error, formation_error_batch(w.positions, w.pattern, w.slots))
     d = slot_distances(w.positions, w.pattern, w.slots)
