@@ -157,6 +157,7 @@ class Robot:
         self._first_cmd_logged = False
         self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
         self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
+        self._pose_sub: zenoh.Subscriber[None] | None = None
 
     # ------------------------------------------------------------- lifecycle
 
@@ -170,7 +171,9 @@ class Robot:
             s.declare_publisher(keys.status_key(sw, self.id), express=True)
         )
         z.enter_context(s.declare_subscriber(keys.poses_key(sw), self._on_poses))
-        z.enter_context(s.declare_subscriber(keys.all_poses(sw), self._on_pose))
+        # per-robot poses until the first all-poses message (then undeclared: O(1) a step)
+        self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
+        z.callback(self._drop_pose_keys)
         z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
         z.enter_context(s.declare_subscriber(keys.brain_key(sw), self._on_brain))
         z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
@@ -199,6 +202,11 @@ class Robot:
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
         self.inbox.take(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _drop_pose_keys(self) -> None:
+        sub, self._pose_sub = self._pose_sub, None
+        if sub is not None:
+            sub.undeclare()  # type: ignore[no-untyped-call]
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
         self.inbox.take_batch(sample.payload.to_bytes())
@@ -243,6 +251,8 @@ class Robot:
             step = self.inbox.next_step(now, wake_by, self._holding, self.swaps.busy)  # observe
             if step is None:
                 continue
+            if self._pose_sub is not None and self.inbox.batches:
+                self._drop_pose_keys()  # the world sends all poses in one message
             decision = self._decide(step)  # decide
             if self.cfg.debug_delay_ms > 0:  # testing only: a slow robot, on purpose
                 time.sleep(self._delay_rng.uniform(0.0, self.cfg.debug_delay_ms) / 1000.0)

@@ -2,8 +2,9 @@
 
 Every declaration lives in one :class:`contextlib.ExitStack`, entered by
 :meth:`WorldLink.open` and undeclared in reverse order by :meth:`WorldLink.close`
-(the subscribers first, then the pattern's queryable, the poses' and the
-pattern's publishers, the world's liveliness token last). Callbacks run on
+(the per-robot pose publishers first, then the subscribers, the pattern's
+queryable, the poses' and the pattern's publishers, the world's liveliness token
+last). Callbacks run on
 Zenoh's threads; what they share with the world's thread sits under one
 :class:`threading.Condition` (:attr:`WorldLink.cond`), which the world's waits use:
 
@@ -14,7 +15,10 @@ Zenoh's threads; what they share with the world's thread sits under one
 
 Poses go out as ONE :class:`~runtime.messages.PoseBatch` per step on
 ``patternrl/<swarm>/poses`` (every robot receives one message a step, not one per
-robot); the log holds them as per-robot poses (:mod:`sim_bridge.recorder`).
+robot); the log holds them as per-robot poses (:mod:`sim_bridge.recorder`). Each
+robot's own pose key is still published for whoever subscribes to it (tools, a
+robot before its first all-poses message): a Zenoh matching listener per
+publisher says who listens, so nobody listening costs nothing.
 
 **A command counts only for the step it was computed from**, in both modes: the
 world applies robot i's command at step t only if it says step t (the poses of t,
@@ -51,9 +55,11 @@ from runtime import keys
 from runtime.messages import (
     Command,
     MessageError,
+    Pose,
     PoseBatch,
     decode_command,
     decode_status,
+    encode_pose,
     encode_poses,
 )
 from runtime.types import Array
@@ -103,6 +109,8 @@ class WorldLink:
         self._stack: ExitStack | None = None
         self._pattern_pub: zenoh.Publisher | None = None
         self._poses_pub: zenoh.Publisher | None = None
+        self._pose_pubs: dict[int, tuple[zenoh.Publisher, zenoh.MatchingListener]] = {}
+        self._listened: set[int] = set()  # robots whose pose key someone subscribes to
         self._prev_pos: dict[int, tuple[float, float]] = {}
         self._pattern_payload = b""
         self.pattern_sent_s = 0.0
@@ -130,6 +138,7 @@ class WorldLink:
             stack.enter_context(s.declare_queryable(keys.pattern_key(sw), self._on_pattern_query))
             stack.enter_context(s.liveliness().declare_subscriber(
                 keys.all_alive(sw), self._on_alive, history=True))
+            stack.callback(self._undeclare_poses)  # last in, so the first undeclared
             self._stack = stack.pop_all()
 
     def close(self) -> None:
@@ -254,12 +263,30 @@ class WorldLink:
 
     def add_robot(self, rid: int, x: float, y: float) -> None:
         """A robot placed at (x, y) metres: in the poses from the next step on."""
+        pub = self.session.declare_publisher(keys.pose_key(self.swarm, rid), express=False)
+
+        def matching(status: zenoh.MatchingStatus) -> None:
+            if status.matching:
+                self._listened.add(rid)
+            else:
+                self._listened.discard(rid)
+
+        self._pose_pubs[rid] = (pub, pub.declare_matching_listener(matching))
         self._prev_pos[rid] = (x, y)
         with self.cond:  # a robot that joins is waited for, until it proves silent
             self._spoke_at[rid] = self._exchanges
 
     def remove_robot(self, rid: int) -> None:
+        pub = self._pose_pubs.pop(rid, None)
+        if pub is not None:
+            pub[1].undeclare()  # type: ignore[no-untyped-call]
+            pub[0].undeclare()  # type: ignore[no-untyped-call]
+        self._listened.discard(rid)
         self._prev_pos.pop(rid, None)
+
+    def _undeclare_poses(self) -> None:
+        for rid in list(self._pose_pubs):
+            self.remove_robot(rid)
 
     def moved(self, ids: list[int], pos: Array) -> None:
         """Where the robots were at the step just published: velocities are measured from it."""
@@ -272,12 +299,21 @@ class WorldLink:
         pos = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
         prev = np.array([self._prev_pos.get(rid, (x, y))
                          for rid, (x, y) in zip(ids, pos.tolist(), strict=True)]).reshape(-1, 2)
-        payload = encode_poses(PoseBatch(step, step * dt_s, ids, pos, (pos - prev) / dt_s))
+        batch = PoseBatch(step, step * dt_s, ids, pos, (pos - prev) / dt_s)
+        payload = encode_poses(batch)
         with self.cond:
             self._last_step = max(self._last_step, step)
         self._poses_pub.put(payload)
-        if self.rec is not None:
+        if self.rec is not None:  # logged once, as per-robot poses
             self.rec.write_wire(keys.poses_key(self.swarm), payload)
+        listened = self._listened
+        if listened:  # the per-robot keys, only where someone listens
+            n, t = len(ids), batch.time_s
+            for k, rid in enumerate(ids):
+                pub = self._pose_pubs.get(rid)
+                if rid in listened and pub is not None:
+                    (x, y), (vx, vy) = batch.xy[k].tolist(), batch.v[k].tolist()
+                    pub[0].put(encode_pose(Pose(rid, step, t, x, y, vx, vy, n)))
 
     def publish_final(self, step: int, dt_s: float, ids: list[int], pos: Array) -> None:
         """The last poses of a run: published, logged, no command awaited."""
