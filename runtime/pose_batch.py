@@ -22,8 +22,19 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from runtime.wire_codec import U32, U64, VERSION, Buffer, MessageError, Reader, Tag, as_view, \
-    check_header, finite, uint
+from runtime.wire_codec import (
+    U32,
+    U64,
+    VERSION,
+    Buffer,
+    MessageError,
+    Reader,
+    Tag,
+    as_view,
+    check_header,
+    finite,
+    uint,
+)
 
 __all__ = ["MAX_POSES_ROBOTS", "POSES_ROW_DTYPE", "PoseBatch", "decode_poses", "encode_poses"]
 
@@ -123,8 +134,11 @@ def decode_poses(payload: Buffer) -> PoseBatch:
     raw = r.take(_ROW * n, "rows")
     r.finish()
     # two strided views of the rows, copied once each (no per-field passes)
-    ids = np.ndarray((n,), "<u4", raw, 0, (_ROW,)).copy()
-    xyv = np.ndarray((n, 4), "<f8", raw, 4, (_ROW, 8)).copy()
+    if n:
+        ids = np.ndarray((n,), "<u4", raw, 0, (_ROW,)).copy()
+        xyv = np.ndarray((n, 4), "<f8", raw, 4, (_ROW, 8)).copy()
+    else:  # no rows: nothing to view (an offset into an empty buffer is refused)
+        ids, xyv = np.zeros(0, np.uint32), np.zeros((0, 4))
     if not np.isfinite(xyv).all():
         raise MessageError("poses: positions and velocities must all be finite")
     if not _ascending(ids):
