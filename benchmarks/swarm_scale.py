@@ -199,7 +199,7 @@ def main() -> int:
             f"{'cpu ms/robot/step':>17} {'PSS MB':>6} {'RSS MB':>6} {'start s':>7} "
             f"{'formed':>6} {'steps':>5} {'lb':>4} {'collisions':>10}")
     print(head)
-    for r in realtime + [None] + lockstep:
+    for r in [*realtime, None, *lockstep]:
         if r is None:
             print("\nlockstep (the world waits for every command, deadline 250 ms)")
             print(head)
