@@ -50,7 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mode", choices=("lockstep", "realtime"), default="lockstep", help="(default lockstep)"
     )
     parser.add_argument(
-        "--rate-hz", type=float, default=None, help="realtime decision rate (default 1/dt = 10)"
+        "--rate-hz",
+        type=float,
+        default=None,
+        help="realtime decision rate from per-robot pose keys (default 1/dt = 10); with the "
+        "world's all-poses message the robot decides on each step as it arrives",
     )
     parser.add_argument(
         "--pattern",
