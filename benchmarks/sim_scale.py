@@ -20,7 +20,7 @@ computation and brain swaps, left out) and pose-to-command latency (from the mom
 world starts publishing a step's poses to each command's arrival), p50 and p99;
 beside them, what the robots report as their decision time (observation,
 brain, safety filter) and the CPU time all robot processes together spent per
-step (receiving every pose, deciding, answering), and the world's own CPU time
+step (receiving the step's poses, deciding, answering), and the world's own CPU time
 per step (its thread: publishing, collecting, physics, measures; no log is
 written here; the whole process, Zenoh's threads and pattern changes included,
 in the JSON): on a machine with few cores

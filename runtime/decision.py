@@ -49,7 +49,12 @@ from typing import NamedTuple
 import numpy as np
 
 from runtime.brain import Brain
-from runtime.formation import assign_centred, assign_slots_batch, slot_positions
+from runtime.formation import (
+    assign_slots_batch,
+    keeps_previous,
+    linear_sum_assignment,
+    slot_positions,
+)
 from runtime.observation import frame_velocities, general_row, observe
 from runtime.safety import OrcaParams, clamp_speed, orca_filter
 from runtime.types import Array, BoolArray, IntArray
@@ -182,6 +187,8 @@ class Controller:
         self._brain = brain
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
+        self._ccx: Array = np.zeros(0)
+        self._ccy: Array = np.zeros(0)
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -213,6 +220,8 @@ class Controller:
         if c.ndim != 2 or c.shape[-1] != 2:
             raise ValueError(f"pattern must have shape (n, 2), got {c.shape}")
         self._cc = c - c.mean(axis=0, keepdims=True)
+        # its columns, contiguous, for the cost kernel of _assign
+        self._ccx, self._ccy = self._cc[:, 0].copy(), self._cc[:, 1].copy()
         self._pattern_obj = pattern
         self._prev_slots = None
 
@@ -246,6 +255,24 @@ class Controller:
         self._L, self._Lp = lst, prev
         self._V = frame_velocities(lst, prev, self.world.dt_s)
         self._last_step = step
+
+    def _assign(self, Pc: Array) -> IntArray:
+        """:func:`runtime.formation.assign_centred` of the centred team ``Pc`` (n, 2) against
+        the cached pattern, with its hysteresis: the same cost, bit for bit, built from
+        contiguous columns ((n, n) twice instead of one (n, n, 2) array: 4x less time at
+        n = 100), the same solver and the same rule."""
+        dx = Pc[:, 0:1] - self._ccx  # (n, n): robot i to point j
+        dx *= dx
+        dy = Pc[:, 1:2] - self._ccy
+        dy *= dy
+        dx += dy
+        cols: IntArray = linear_sum_assignment(dx)[1]
+        prev = self._prev_slots
+        if prev is not None and len(prev) == len(cols) and prev.tolist() != cols.tolist():
+            rows = np.arange(len(cols))
+            if keeps_previous(dx[rows, cols].sum(), dx[rows, prev].sum()):
+                return prev
+        return cols
 
     # -------------------------------------------------------------- decide
 
@@ -285,7 +312,7 @@ class Controller:
         else:
             # 1. assign
             cen = np.add.reduce(pos, 0) / n  # == pos.mean(0), without mean's Python overhead
-            slots = assign_centred(pos - cen, self._cc, self._prev_slots)
+            slots = self._assign(pos - cen)
             self._prev_slots = slots
             slot = int(slots[i])
             team = getattr(brain, "team_velocities", None)
@@ -294,7 +321,8 @@ class Controller:
             obs: Array | None = None  # a team rule plans from the poses (step 3)
             if team is None and spec.name == "general":
                 sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
-                row = general_row(i, self._L, self._V, (sx, sy), spec.k_neighbours, self.world)
+                row = general_row(i, self._L, self._V, (sx, sy), spec.k_neighbours, self.world,
+                                  pos)
                 obs = np.array([row])
             elif team is None:
                 obs = observe(spec, self._frames, None, (i,), self.world)

@@ -6,9 +6,9 @@ certificate authority (``patternrl keys create``, :mod:`sim_bridge.swarm_keys`):
 ==============  ===================================================================
 identity        may publish (Zenoh ``put`` / liveliness token / reply)
 ==============  ===================================================================
-``world``       every robot's ``pose``, the ``pattern`` (and replies to pattern
-                queries), the ``brain`` of each pattern between phases,
-                liveliness ``alive/world``
+``world``       every robot's ``pose``, all poses of a step (``poses``), the
+                ``pattern`` (and replies to pattern queries), the ``brain`` of
+                each pattern between phases, liveliness ``alive/world``
 ``robot-<i>``   its own ``robot/<i>/cmd`` and ``robot/<i>/status``, liveliness
                 ``alive/<i>``
 ``operator``    ``brain`` and ``pattern``
@@ -128,8 +128,8 @@ def access_control(swarm: str, n_robots: int) -> dict[str, Any]:
         _rule("listen", ["declare_subscriber", "declare_liveliness_subscriber",
                          "liveliness_query", "query"], [f"{root}/**"], ingress),
         # the world also swaps in each pattern's chosen brain between phases (signed brains only)
-        _rule("world-put", ["put"], [keys.all_poses(swarm), keys.pattern_key(swarm),
-                                     keys.brain_key(swarm)], ingress),
+        _rule("world-put", ["put"], [keys.all_poses(swarm), keys.poses_key(swarm),
+                                     keys.pattern_key(swarm), keys.brain_key(swarm)], ingress),
         _rule("world-pattern-queries", ["declare_queryable", "reply"], [keys.pattern_key(swarm)],
               ingress),
         _rule("world-alive", ["liveliness_token"], [keys.alive_key(swarm, keys.WORLD_ID)],

@@ -9,6 +9,18 @@
 
 No step is ready without a fresh pose of this robot. A pose of this robot
 whose step goes back means the world restarted: steps count again from there.
+
+**All poses of a step in one message** (:class:`runtime.messages.PoseBatch` on
+``patternrl/<swarm>/poses``, what the simulated world sends): the step is ready
+as soon as its message arrives, in both modes -- it holds every live robot, so
+there is nothing to wait for, and deciding at once leaves the command the most
+time to reach the world before the step's deadline. Only the newest step is
+kept: a robot that fell behind decides on the newest poses and never on a
+step the world has already left (a command for an old step would be discarded
+by the world anyway: see :mod:`sim_bridge.world_link`). The per-robot pose keys
+(a real swarm's localisation, replayed logs, tools) work as described above
+until the first all-poses message comes; from then on those messages alone
+make the steps.
 """
 
 from __future__ import annotations
@@ -23,7 +35,7 @@ import numpy as np
 
 from runtime import keys
 from runtime.log import Log
-from runtime.messages import MessageError, Pose, decode_pose
+from runtime.messages import MessageError, Pose, decode_pose, decode_poses
 from runtime.types import Array
 
 __all__ = ["MAX_COORD_M", "PoseInbox", "Step"]
@@ -82,6 +94,10 @@ class PoseInbox:
         self._col_t0 = 0.0
         self._col_n_live = 0
         self._restart = False
+        self._batch: Step | None = None  # the newest all-poses message holding this robot
+        self._batch_step = -1  # its step (any batch, ours or not)
+        self.batches = 0
+        """All-poses messages taken (for status and tests)."""
         # the loop's, under cond
         self._last_decided = -1
         self._next_tick = time.monotonic()
@@ -123,6 +139,33 @@ class PoseInbox:
                 if self.id in self._col_ids and len(self._col_ids) >= pose.n_live:
                     self.cond.notify()
 
+    def take_batch(self, payload: bytes) -> None:
+        """An all-poses sample: kept as the step to decide, or dropped (counted) when malformed."""
+        try:
+            b = decode_poses(payload)
+        except MessageError as e:
+            self._drop("poses", str(e))
+            return
+        n = b.robot_ids.shape[0]
+        if n and float(abs(b.xy).max()) > MAX_COORD_M:
+            self._drop("poses", f"a position beyond {MAX_COORD_M:g} m")
+            return
+        ids: list[int] = b.robot_ids.tolist()
+        mine = self.id in ids
+        now = time.monotonic()
+        with self.cond:
+            self._last_pose_t = now
+            self.batches += 1
+            s = b.step
+            if s <= self._batch_step:
+                if not (mine and s < self._batch_step):
+                    return  # a duplicate or out of order: the newer one is kept
+                self._restart = True  # our own step went back: the world restarted
+            self._batch_step = s
+            self._batch = Step(s, ids, b.xy) if mine else None
+            if mine:
+                self.cond.notify()
+
     # --------------------------------------------------------------- loop side
 
     def silence_s(self, now: float) -> float | None:
@@ -148,18 +191,29 @@ class PoseInbox:
                     self._on_restart()
             step = None
             if not holding:
+                step = self._ready_batch()
+            if step is None and not holding and self._batch_step < 0:  # per-robot poses only
                 step = self._ready_realtime(now) if self.realtime else self._ready_lockstep(now)
             if step is not None:
                 self._last_decided = step.step
                 return step
             wake = wake_by
-            if self.realtime:
+            if self._batch_step >= 0:
+                pass  # batches wake the loop as they come: no tick, no deadline
+            elif self.realtime:
                 wake = min(wake, self._next_tick)
             elif self._col_step > self._last_decided and not holding:
                 wake = min(wake, self._col_t0 + self.deadline_s)
             if not busy():
                 self.cond.wait(max(0.0, wake - time.monotonic()))
             return None
+
+    def _ready_batch(self) -> Step | None:
+        b = self._batch
+        if b is None or b.step <= self._last_decided:
+            return None
+        self._batch = None  # decided once
+        return b
 
     def _team(self, now: float, step: int | None) -> tuple[list[int], Array] | None:
         """Ids and positions of the live robots (sorted by id); None without our own pose.

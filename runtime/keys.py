@@ -3,6 +3,7 @@
 Layout (``<swarm>`` is one name of ``[A-Za-z0-9_-]+``, ``<id>`` a robot id >= 0)::
 
     patternrl/<swarm>/robot/<id>/pose     world -> robots    position, velocity, step, n_live
+    patternrl/<swarm>/poses               world -> robots    every live robot's pose of a step
     patternrl/<swarm>/robot/<id>/cmd      robot -> world     commanded velocity, step, brain id
     patternrl/<swarm>/robot/<id>/status   robot -> anyone    brain id, latency, errors, swaps
     patternrl/<swarm>/pattern             operator/world -> all   target pattern, version
@@ -27,16 +28,17 @@ CMD: Final = "cmd"
 STATUS: Final = "status"
 ROBOT_CHANNELS: Final = (POSE, CMD, STATUS)
 PATTERN: Final = "pattern"
+POSES: Final = "poses"
 BRAIN: Final = "brain"
 ALIVE: Final = "alive"
-KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE)
+KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES)
 """Every kind of key, as :attr:`Key.kind` names it."""
 
 _SWARM_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ALIVE_ID_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ANY_KEY_RE: Final = re.compile(
     r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status)"
-    r"|(pattern|brain)|alive/([A-Za-z0-9_-]+))"
+    r"|(pattern|brain|poses)|alive/([A-Za-z0-9_-]+))"
 )
 _ROBOT_ID_RE: Final = re.compile(r"0|[1-9][0-9]*")
 
@@ -75,6 +77,12 @@ def pose_key(swarm: str, robot_id: int) -> str:
 def all_poses(swarm: str) -> str:
     """Poses of every robot of the swarm."""
     return _all_robots(swarm, POSE)
+
+
+def poses_key(swarm: str) -> str:
+    """Every live robot's pose of one step in one message (:class:`runtime.messages.PoseBatch`),
+    published by the world: what a simulated robot subscribes to (O(1) receives per step)."""
+    return f"{PREFIX}/{validate_swarm(swarm)}/poses"
 
 
 def cmd_key(swarm: str, robot_id: int) -> str:
@@ -177,5 +185,7 @@ def with_swarm(key: str, swarm: str) -> str | None:
         return pattern_key(swarm)
     if k.kind == BRAIN:
         return brain_key(swarm)
+    if k.kind == POSES:
+        return poses_key(swarm)
     assert k.alive_id is not None
     return alive_key(swarm, k.robot_id if k.robot_id is not None else k.alive_id)

@@ -13,6 +13,7 @@ payload starts with a 1-byte message tag and a 1-byte format version (:data:`VER
                                                   len(name), n points; utf-8 name; n x 2 f64
     Brain    <BB> + 3 x (<I> + bytes) + <I> + ids  request_id, manifest_json (utf-8),
                                                   onnx bytes, then n target ids as uint32
+    Poses    <BB Q d I> + n x <I d d d d>         all poses of a step: runtime/pose_batch.py
 
 Every decoder bounds a message before it uses it: sizes first (a length or count field is
 checked against its documented maximum, ``MAX_*`` below, and against the bytes that are
@@ -38,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from runtime.patterns import MAX_PATTERN_COORD_M
+from runtime.pose_batch import MAX_POSES_ROBOTS, PoseBatch, decode_poses, encode_poses
 from runtime.wire_codec import (
     HEADER,
     LEN32,
@@ -65,6 +67,7 @@ __all__ = [
     "MAX_PATTERN_COORD_M",
     "MAX_PATTERN_NAME_BYTES",
     "MAX_PATTERN_POINTS",
+    "MAX_POSES_ROBOTS",
     "MAX_REQUEST_ID_BYTES",
     "MAX_STATUS_BYTES",
     "MAX_TARGET_ROBOTS",
@@ -77,6 +80,7 @@ __all__ = [
     "MessageError",
     "PatternMsg",
     "Pose",
+    "PoseBatch",
     "Status",
     "Tag",
     "command_dtype",
@@ -85,12 +89,14 @@ __all__ = [
     "decode_command",
     "decode_pattern",
     "decode_pose",
+    "decode_poses",
     "decode_status",
     "encode",
     "encode_brain",
     "encode_command",
     "encode_pattern",
     "encode_pose",
+    "encode_poses",
     "encode_status",
 ]
 
@@ -554,7 +560,7 @@ def decode_brain(payload: Buffer) -> BrainMsg:
 
 # -- any message ----------------------------------------------------------------------------
 
-Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg
+Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg | PoseBatch
 
 _ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
     Pose: encode_pose,
@@ -562,6 +568,7 @@ _ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
     Status: encode_status,
     PatternMsg: encode_pattern,
     BrainMsg: encode_brain,
+    PoseBatch: encode_poses,
 }
 
 _DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
@@ -570,6 +577,7 @@ _DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
     Tag.STATUS: decode_status,
     Tag.PATTERN: decode_pattern,
     Tag.BRAIN: decode_brain,
+    Tag.POSES: decode_poses,
 }
 
 

@@ -249,6 +249,11 @@ def general_observation(
     return out
 
 
+NUMPY_NEIGHBOURS_FROM = 24
+"""Team size from which :func:`general_row` sorts distances with numpy (below it, a
+dozen numpy calls cost more than the Python loop)."""
+
+
 def frame_velocities(L: list[list[float]], Lp: list[list[float]], dt: float) -> list[list[float]]:
     """Every robot's velocity estimated from two frames, (p_t - p_{t-1}) / dt, plain floats.
 
@@ -265,6 +270,7 @@ def general_row(
     slot: tuple[float, float],
     k: int,
     world: WorldConfig = DEFAULT_WORLD,
+    P: Array | None = None,
 ) -> list[float]:
     """Robot i's general observation, 6 + 5k plain floats: the one-robot kernel.
 
@@ -274,6 +280,9 @@ def general_row(
     what the robot calls with the lists it keeps anyway: at n ~ 10 a dozen
     numpy calls cost more than the arithmetic. The same IEEE operations, in
     the same order, as the batch code (tests hold every row of the two equal).
+    ``P``: the same positions as an (n, 2) array, if the caller has it: above
+    :data:`NUMPY_NEIGHBOURS_FROM` robots the k nearest are then found with numpy
+    (the same squares and sums, a stable sort: the same neighbours, ties by index).
     """
     n = len(L)
     px, py = L[i]
@@ -284,7 +293,15 @@ def general_row(
     vix, viy = V[i]
     out = [svx, svy, svx / d, svy / d, vix, viy]
     m = min(k, n - 1)
-    if m > 0:
+    if m > 0 and P is not None and n >= NUMPY_NEIGHBOURS_FROM:
+        rx = P[:, 0] - px
+        ry = P[:, 1] - py
+        d2a = rx * rx + ry * ry
+        d2a[i] = math.inf
+        for j in np.argsort(d2a, kind="stable")[:m].tolist():
+            v = V[j]
+            out += (L[j][0] - px, L[j][1] - py, v[0] - vix, v[1] - viy, 1.0)
+    elif m > 0:
         rel = [(q[0] - px, q[1] - py) for q in L]
         d2 = [x * x + y * y for x, y in rel]
         d2[i] = math.inf

@@ -10,6 +10,16 @@ Loop (one thread decides; Zenoh callbacks only store what arrives):
 * **realtime**: at ``--rate-hz`` with the latest poses; peers whose pose is
   older than ``--stale-s`` are absent.
 
+With the world's poses of a step in one message (``patternrl/<swarm>/poses``,
+what ``patternrl sim`` sends), both modes decide on each new step as soon as
+its message arrives, on the newest step only (:mod:`runtime.inbox`).
+
+Late never means unsafe: a command carries the step whose poses it was decided
+from, and the world applies it to that step only; a command that misses its
+step's deadline is discarded and the robot holds still for that step (the
+world's rule, :mod:`sim_bridge.world_link`). A slow robot therefore costs
+progress, never separation.
+
 Nothing waits on another robot's decision. Every decision goes through the
 :class:`runtime.decision.Controller`: shared assignment, the observation the
 brain's spec names, the brain, clamp to v_max, the ORCA safety filter.
@@ -55,6 +65,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import random
 import signal
 import sys
 import threading
@@ -85,7 +96,7 @@ __all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
 
 
 HEAVY_MODULES: Final = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
-IDLE_WAKE_S: Final = 0.05  # the loop looks at status and watchdog at least this often
+IDLE_WAKE_S: Final = 0.2  # the loop looks at status, watchdog and stop at least this often
 
 
 def heavy_modules() -> list[str]:
@@ -145,6 +156,8 @@ class Robot:
         self._holding = False
         self._first_cmd_logged = False
         self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
+        self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
+        self._pose_sub: zenoh.Subscriber[None] | None = None
 
     # ------------------------------------------------------------- lifecycle
 
@@ -157,7 +170,10 @@ class Robot:
         self._status_pub = z.enter_context(
             s.declare_publisher(keys.status_key(sw, self.id), express=True)
         )
-        z.enter_context(s.declare_subscriber(keys.all_poses(sw), self._on_pose))
+        z.enter_context(s.declare_subscriber(keys.poses_key(sw), self._on_poses))
+        # per-robot poses until the first all-poses message (then undeclared: O(1) a step)
+        self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
+        z.callback(self._drop_pose_keys)
         z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
         z.enter_context(s.declare_subscriber(keys.brain_key(sw), self._on_brain))
         z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
@@ -186,6 +202,14 @@ class Robot:
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
         self.inbox.take(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _drop_pose_keys(self) -> None:
+        sub, self._pose_sub = self._pose_sub, None
+        if sub is not None:
+            sub.undeclare()  # type: ignore[no-untyped-call]
+
+    def _on_poses(self, sample: zenoh.Sample) -> None:
+        self.inbox.take_batch(sample.payload.to_bytes())
 
     def _on_pattern(self, sample: zenoh.Sample) -> None:
         self._take_pattern(sample.payload.to_bytes())
@@ -227,7 +251,11 @@ class Robot:
             step = self.inbox.next_step(now, wake_by, self._holding, self.swaps.busy)  # observe
             if step is None:
                 continue
+            if self._pose_sub is not None and self.inbox.batches:
+                self._drop_pose_keys()  # the world sends all poses in one message
             decision = self._decide(step)  # decide
+            if self.cfg.debug_delay_ms > 0:  # testing only: a slow robot, on purpose
+                time.sleep(self._delay_rng.uniform(0.0, self.cfg.debug_delay_ms) / 1000.0)
             self._send(step.step, decision)  # send
         return 0
 

@@ -34,6 +34,9 @@ class RobotConfig:
     world_timeout_s: float = 30.0
     trust: TrustedKeys | None = None
     """Keys a brain must be signed by (None: unchecked, for embedding and tests)."""
+    debug_delay_ms: float = 0.0
+    """Testing only: each command goes out after a random extra delay in [0, this] ms
+    (seeded by the robot id), to check that late commands never make the swarm unsafe."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mode", choices=("lockstep", "realtime"), default="lockstep", help="(default lockstep)"
     )
     parser.add_argument(
-        "--rate-hz", type=float, default=None, help="realtime decision rate (default 1/dt = 10)"
+        "--rate-hz",
+        type=float,
+        default=None,
+        help="realtime decision rate from per-robot pose keys (default 1/dt = 10); with the "
+        "world's all-poses message the robot decides on each step as it arrives",
     )
     parser.add_argument(
         "--pattern",
@@ -88,6 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(repeatable); the release key and your own key are always trusted",
     )
     parser.add_argument("--status-period-s", type=float, default=1.0, help=argparse.SUPPRESS)
+    parser.add_argument("--debug-delay-ms", type=float, default=0.0, help=argparse.SUPPRESS)
     g = parser.add_argument_group("safety filter (ORCA)")
     d = OrcaParams()
     g.add_argument("--safety", choices=("orca", "off"), default="orca", help="(default orca)")
@@ -156,6 +164,7 @@ def config_from_args(
         ("--exit-after-silence-s", args.exit_after_silence_s),
         ("--world-timeout-s", args.world_timeout_s),
         ("--orca-radius-margin-m", args.orca_radius_margin_m),
+        ("--debug-delay-ms", args.debug_delay_ms),
     ):
         if not (math.isfinite(v) and v >= 0):
             raise InputError(f"{name} must be >= 0, got {v}")
@@ -192,5 +201,6 @@ def config_from_args(
         pattern=args.pattern,
         world_timeout_s=args.world_timeout_s,
         trust=default_trust(args.trust),
+        debug_delay_ms=args.debug_delay_ms,
     )
     return cfg, safety

@@ -37,6 +37,7 @@ class Tag(IntEnum):
     STATUS = 3
     PATTERN = 4
     BRAIN = 5
+    POSES = 6
 
 
 def tag_name(tag: int) -> str:

@@ -26,9 +26,13 @@ message encoding ``json`` and schema encoding ``jsonschema``.
 The protobuf schemas are :mod:`sim_bridge.log_schemas`'s (a ``FileDescriptorSet``
 per schema record). The ``K/...`` channels hold every field of the Zenoh message
 on that key (:mod:`runtime.messages`), one channel per key; play-back turns them
-back into the wire payloads. ``/tf`` holds one message per recorded step with a
-transform per robot; ``/robot/<id>/pose`` the same position as a ``PoseInFrame``
-(Foxglove's Plot panel: ``/robot/3/pose.pose.position.x``). ``/log/other`` holds
+back into the wire payloads. The world's poses of a step in one message (``K/poses``,
+:class:`runtime.messages.PoseBatch`) are written as the per-robot ``K/robot/<id>/pose``
+messages they hold (same step, ``n_live`` = the batch's size), so every reader, replay
+and panel sees one layout whichever way the poses travelled; play-back republishes them
+on the per-robot keys, which robots accept as well. ``/tf`` holds one message per
+recorded step with a transform per robot; ``/robot/<id>/pose`` the same position as a
+``PoseInFrame`` (Foxglove's Plot panel: ``/robot/3/pose.pose.position.x``). ``/log/other`` holds
 what is not one of the project's messages: a sample on a foreign key (whole), a
 payload that did not decode (``reason``, its first bytes) and a payload refused
 for its size (``reason``, no bytes; see :data:`MAX_PAYLOAD_BYTES`).

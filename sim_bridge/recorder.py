@@ -31,11 +31,14 @@ from runtime import keys
 from runtime.errors import InputError
 from runtime.messages import (
     MessageError,
+    Pose,
     decode_brain,
     decode_command,
     decode_pattern,
     decode_pose,
+    decode_poses,
     decode_status,
+    encode_pose,
 )
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from sim_bridge import log_schemas as pb
@@ -330,6 +333,9 @@ class Recorder:
         if len(payload) > limit:
             self._refuse(key, len(payload), limit)
             return
+        if kind == keys.POSES and k is not None and self._expand_poses(k.swarm, payload,
+                                                                       log_time_ns):
+            return
         if self._wire_layout:
             with self._lock:
                 if not self._closed:
@@ -357,6 +363,21 @@ class Recorder:
             if kind == keys.POSE and k is not None and k.robot_id is not None:
                 self._pose_views(k.robot_id, payload, step, t)
 
+    def _expand_poses(self, swarm: str, payload: bytes, log_time_ns: int | None) -> bool:
+        """A :class:`~runtime.messages.PoseBatch` is logged as the per-robot poses it holds
+        (the channels every reader, replay and Foxglove panel knows); False if malformed."""
+        try:
+            b = decode_poses(payload)
+        except MessageError:
+            return False  # kept as a malformed raw sample by the caller
+        n = len(b.robot_ids)
+        for rid, (x, y), (vx, vy) in zip(b.robot_ids.tolist(), b.xy.tolist(), b.v.tolist(),
+                                         strict=True):
+            self.write_wire(keys.pose_key(swarm, rid),
+                            encode_pose(Pose(rid, b.step, b.time_s, x, y, vx, vy, n)),
+                            log_time_ns)
+        return True
+
     @staticmethod
     def _to_pb(kind: str, payload: bytes) -> tuple[bytes | None, int | None]:
         """(the protobuf message of a payload on a key of ``kind``, its step); (None, None)
@@ -374,6 +395,8 @@ class Recorder:
             return pb.pattern_pb(decode_pattern(payload)), None
         if kind == keys.BRAIN:
             return pb.brain_pb(decode_brain(payload)), None
+        if kind == keys.POSES:  # only a malformed one comes here (see _expand_poses)
+            decode_poses(payload)
         return None, None
 
     def _pose_views(self, rid: int, payload: bytes, step: int | None, t: int) -> None:

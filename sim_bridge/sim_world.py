@@ -11,9 +11,13 @@ The world owns the truth (where every robot is) and the clock. Each step it
      ``step_deadline_ms`` has passed; a robot that has not answered holds still
      for the step and is counted (``deadline_miss``); an answer that comes late
      is dropped and counted, and nothing ever waits longer than the deadline;
-   * ``realtime``: one step every ``1 / rate_hz`` seconds with each robot's
-     latest command (a command more than two steps old is not used: that robot
-     holds still, counted);
+   * ``realtime``: one step every ``1 / rate_hz`` seconds on a fixed schedule
+     (the world's own work comes out of the period); the commands for that step
+     that arrived before its tick are applied, nothing older;
+
+   in both modes a robot whose command for the step is missing or late holds
+   still for the step (counted): a command is only ever applied to the positions
+   it was decided from (see :mod:`sim_bridge.world_link`);
 
 3. steps the physics (:mod:`sim_bridge.physics`), then measures the formation
    against the current pattern (:mod:`sim_bridge.phase_tally`) and records
@@ -137,6 +141,9 @@ class SimWorld:
         # out: wall, and CPU of the world's thread.
         self.stepping_wall_s = 0.0
         self.stepping_cpu_s = 0.0
+        self._tick: float | None = None  # realtime: when the current step's period began
+        self.overruns = 0
+        """realtime: steps whose tick had passed before their poses went out."""
         patterns_at_n = [make_pattern(p, cfg.robots, self.w) for p in cfg.patterns]
         self.arena_m = arena_for_patterns(patterns_at_n, self.w)
         self.physics = PhysicsWorld(self.arena_m, self.w)
@@ -298,8 +305,15 @@ class SimWorld:
 
     def _deadline_s(self, first: bool) -> float:
         """How long a step waits for commands: longer at the start and after a join."""
-        if self.cfg.mode != "lockstep":
-            return 1.0 / self.cfg.rate_hz
+        if self.cfg.mode != "lockstep":  # to the step's tick, on a fixed schedule
+            period = 1.0 / self.cfg.rate_hz
+            now = time.monotonic()
+            if self._tick is None or now > self._tick + period:
+                if self._tick is not None:
+                    self.overruns += 1
+                self._tick = now  # behind by a whole period (or the first step): start again
+            self._tick += period
+            return max(0.0, self._tick - now)
         ms = self.cfg.first_step_deadline_ms if first else self.cfg.step_deadline_ms
         return ms / 1000.0
 

@@ -3,15 +3,32 @@
 Every declaration lives in one :class:`contextlib.ExitStack`, entered by
 :meth:`WorldLink.open` and undeclared in reverse order by :meth:`WorldLink.close`
 (the per-robot pose publishers first, then the subscribers, the pattern's
-publisher and queryable, the world's liveliness token last). Callbacks run on
+queryable, the poses' and the pattern's publishers, the world's liveliness token
+last). Callbacks run on
 Zenoh's threads; what they share with the world's thread sits under one
 :class:`threading.Condition` (:attr:`WorldLink.cond`), which the world's waits use:
 
 * liveliness of the robots goes to the :class:`~sim_bridge.membership.Roster`;
-* commands are kept for the step being collected (:meth:`WorldLink.exchange`),
-  and the latest one of each robot for ``realtime``;
+* commands are kept for the step being collected (:meth:`WorldLink.exchange`);
 * each robot's brain id, from its commands, statuses and accepted swaps;
 * every sample under the swarm is written to the log as it came (``recorder``).
+
+Poses go out as ONE :class:`~runtime.messages.PoseBatch` per step on
+``patternrl/<swarm>/poses`` (every robot receives one message a step, not one per
+robot); the log holds them as per-robot poses (:mod:`sim_bridge.recorder`). Each
+robot's own pose key is still published for whoever subscribes to it (tools, a
+robot before its first all-poses message): a Zenoh matching listener per
+publisher says who listens, so nobody listening costs nothing.
+
+**A command counts only for the step it was computed from**, in both modes: the
+world applies robot i's command at step t only if it says step t (the poses of t,
+which the world published) and arrived before step t's deadline (lockstep: all in
+or ``deadline_s``; realtime: the step's tick). Anything else (late, for an older
+step, missing) is not used: that robot holds still for step t (counted as a
+deadline miss; late arrivals as ``late``). So every velocity applied was decided
+from exactly the positions it is applied to -- the same situation as a
+synchronous evaluation, where each robot's ORCA filter keeps pairs >= 2R apart --
+and a stale command can never move a robot that others already avoided elsewhere.
 
 A sample that does not decode, or whose robot id disagrees with its key, is
 dropped and counted (``malformed`` events, the first 100), never a crash.
@@ -39,9 +56,11 @@ from runtime.messages import (
     Command,
     MessageError,
     Pose,
+    PoseBatch,
     decode_command,
     decode_status,
     encode_pose,
+    encode_poses,
 )
 from runtime.types import Array
 from sim_bridge.membership import Roster
@@ -49,8 +68,6 @@ from sim_bridge.recorder import Recorder
 
 MALFORMED_EVENTS = 100
 """Malformed samples logged one by one; enough to diagnose, the count goes on."""
-REALTIME_STALE_STEPS = 2
-"""``realtime``: a robot's latest command older than this many steps is not used."""
 SILENT_STEPS = 3
 """``lockstep``: a robot silent this many exchanges in a row is no longer waited for."""
 
@@ -84,14 +101,16 @@ class WorldLink:
         self._expect: set[int] = set()
         self._cmds: dict[int, Command] = {}
         self._cmd_t: dict[int, float] = {}
-        self._latest: dict[int, Command] = {}
+        self._last_step = -1  # the newest step whose poses went out
         self._brain_of: dict[int, str] = {}
         self._exchanges = 0  # exchanges begun
         self._spoke_at: dict[int, int] = {}  # robot -> exchange of its last command (or join)
         # --- the world's thread
         self._stack: ExitStack | None = None
         self._pattern_pub: zenoh.Publisher | None = None
-        self._pose_pubs: dict[int, zenoh.Publisher] = {}
+        self._poses_pub: zenoh.Publisher | None = None
+        self._pose_pubs: dict[int, tuple[zenoh.Publisher, zenoh.MatchingListener]] = {}
+        self._listened: set[int] = set()  # robots whose pose key someone subscribes to
         self._prev_pos: dict[int, tuple[float, float]] = {}
         self._pattern_payload = b""
         self.pattern_sent_s = 0.0
@@ -108,6 +127,8 @@ class WorldLink:
             stack.enter_context(s.liveliness().declare_token(keys.alive_key(sw, keys.WORLD_ID)))
             self._pattern_pub = stack.enter_context(
                 s.declare_publisher(keys.pattern_key(sw), express=True))
+            self._poses_pub = stack.enter_context(
+                s.declare_publisher(keys.poses_key(sw), express=True))
             stack.enter_context(s.declare_subscriber(
                 keys.swarm_root(sw), self._on_sample, allowed_origin=zenoh.Locality.REMOTE))
             if self.rec is not None:  # brains this session sends (swaps) are on the log too
@@ -200,15 +221,15 @@ class WorldLink:
         with self.cond:
             self._spoke_at[rid] = self._exchanges
             self._brain_of[rid] = cmd.brain_id
-            self._latest[rid] = cmd
             if cmd.step == self._collect_step and rid in self._expect:
                 if rid not in self._cmds:
                     self._cmds[rid] = cmd
                     self._cmd_t[rid] = now
                     self.decision_us.append(cmd.decision_us)
-                    if self._all_in():
+                    if self.lockstep and self._all_in():
                         self.cond.notify_all()
-            elif cmd.step < self._collect_step and self.lockstep:
+            elif cmd.step < self._collect_step or (
+                    self._collect_step < 0 and cmd.step <= self._last_step):  # too late: unused
                 self.late += 1
 
     def _all_in(self) -> bool:
@@ -241,9 +262,16 @@ class WorldLink:
     # ------------------------------------------------------------ poses
 
     def add_robot(self, rid: int, x: float, y: float) -> None:
-        """A pose publisher for a robot placed at (x, y) metres."""
-        self._pose_pubs[rid] = self.session.declare_publisher(
-            keys.pose_key(self.swarm, rid), express=False)
+        """A robot placed at (x, y) metres: in the poses from the next step on."""
+        pub = self.session.declare_publisher(keys.pose_key(self.swarm, rid), express=False)
+
+        def matching(status: zenoh.MatchingStatus) -> None:
+            if status.matching:
+                self._listened.add(rid)
+            else:
+                self._listened.discard(rid)
+
+        self._pose_pubs[rid] = (pub, pub.declare_matching_listener(matching))
         self._prev_pos[rid] = (x, y)
         with self.cond:  # a robot that joins is waited for, until it proves silent
             self._spoke_at[rid] = self._exchanges
@@ -251,7 +279,9 @@ class WorldLink:
     def remove_robot(self, rid: int) -> None:
         pub = self._pose_pubs.pop(rid, None)
         if pub is not None:
-            pub.undeclare()  # type: ignore[no-untyped-call]
+            pub[1].undeclare()  # type: ignore[no-untyped-call]
+            pub[0].undeclare()  # type: ignore[no-untyped-call]
+        self._listened.discard(rid)
         self._prev_pos.pop(rid, None)
 
     def _undeclare_poses(self) -> None:
@@ -263,18 +293,27 @@ class WorldLink:
         self._prev_pos = {rid: (float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)}
 
     def publish_poses(self, step: int, dt_s: float, ids: list[int], pos: Array) -> None:
-        """Every robot's pose at ``step``; ``pos`` (n, 2) metres in ``ids`` order."""
-        n = len(ids)
-        t = step * dt_s
-        inv_dt = 1.0 / dt_s
-        for k, rid in enumerate(ids):
-            x, y = float(pos[k, 0]), float(pos[k, 1])
-            px, py = self._prev_pos.get(rid, (x, y))
-            payload = encode_pose(Pose(rid, step, t, x, y, (x - px) * inv_dt,
-                                       (y - py) * inv_dt, n))
-            self._pose_pubs[rid].put(payload)
-            if self.rec is not None:
-                self.rec.write_wire(keys.pose_key(self.swarm, rid), payload)
+        """Every robot's pose at ``step`` in one message; ``pos`` (n, 2) metres in ``ids``
+        order (ascending ids)."""
+        assert self._poses_pub is not None, "open() first"
+        pos = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
+        prev = np.array([self._prev_pos.get(rid, (x, y))
+                         for rid, (x, y) in zip(ids, pos.tolist(), strict=True)]).reshape(-1, 2)
+        batch = PoseBatch(step, step * dt_s, ids, pos, (pos - prev) / dt_s)
+        payload = encode_poses(batch)
+        with self.cond:
+            self._last_step = max(self._last_step, step)
+        self._poses_pub.put(payload)
+        if self.rec is not None:  # logged once, as per-robot poses
+            self.rec.write_wire(keys.poses_key(self.swarm), payload)
+        listened = self._listened
+        if listened:  # the per-robot keys, only where someone listens
+            n, t = len(ids), batch.time_s
+            for k, rid in enumerate(ids):
+                pub = self._pose_pubs.get(rid)
+                if rid in listened and pub is not None:
+                    (x, y), (vx, vy) = batch.xy[k].tolist(), batch.v[k].tolist()
+                    pub[0].put(encode_pose(Pose(rid, step, t, x, y, vx, vy, n)))
 
     def publish_final(self, step: int, dt_s: float, ids: list[int], pos: Array) -> None:
         """The last poses of a run: published, logged, no command awaited."""
@@ -291,9 +330,9 @@ class WorldLink:
         """Publish the poses of ``step``, collect its commands.
 
         Waits until every live robot answered (``lockstep``) or ``deadline_s``
-        seconds passed. Returns (velocities (n, 2) m/s in ``ids`` order, robots that
-        gave none: they hold still). In ``realtime`` a robot without a command for
-        this step moves by its latest, if not stale.
+        seconds passed (``realtime``: always the full ``deadline_s``, the time to
+        the step's tick). Returns (velocities (n, 2) m/s in ``ids`` order, robots
+        that gave no command for ``step`` in time: they hold still).
         """
         with self.cond:
             self._exchanges += 1
@@ -318,20 +357,16 @@ class WorldLink:
                 self.cond.wait(left)
             cmds = dict(self._cmds)
             arrived = dict(self._cmd_t)
-            latest = dict(self._latest)
             self._collect_step = -1
         self.latencies_ms.extend((t - t0) * 1000.0 for t in arrived.values())
-        return self._velocities(step, ids, cmds, latest)
+        return self._velocities(ids, cmds)
 
-    def _velocities(self, step: int, ids: list[int], cmds: dict[int, Command],
-                    latest: dict[int, Command]) -> tuple[Array, list[int]]:
+    @staticmethod
+    def _velocities(ids: list[int], cmds: dict[int, Command]) -> tuple[Array, list[int]]:
         v = np.zeros((len(ids), 2))
         missed: list[int] = []
         for k, rid in enumerate(ids):
             cmd = cmds.get(rid)
-            if cmd is None and not self.lockstep:
-                c = latest.get(rid)
-                cmd = c if c is not None and c.step >= step - REALTIME_STALE_STEPS else None
             if cmd is None:
                 missed.append(rid)
             else:

@@ -112,10 +112,12 @@ def test_an_outsider_peer_cannot_steer_the_swarm(procs: Any, tmp_path: Path, kit
             peer.put(keys.cmd_key(swarm, 0), forged)  # robot 1's command on robot 0's key
             for j in junk:
                 for key in (keys.pattern_key(swarm), keys.pose_key(swarm, 0),
-                            keys.cmd_key(swarm, 2), keys.status_key(swarm, 3),
-                            keys.brain_key(swarm)):
+                            keys.poses_key(swarm), keys.cmd_key(swarm, 2),
+                            keys.status_key(swarm, 3), keys.brain_key(swarm)):
                     peer.put(key, j)
-                sent_to_robots += 2  # the pattern and the pose key reach every robot
+                # the pattern and the all-poses key reach every robot (a robot stops
+                # listening to the per-robot pose keys once the world's all-poses come)
+                sent_to_robots += 2
             step = watcher.step()
             running.append(world.poll() is None)
             kit.wait_for(lambda s=step: watcher.step() >= s + 3 or world.poll() is not None,

@@ -44,6 +44,7 @@ def test_every_kind_is_parsed() -> None:
         keys.pattern_key("s"),
         keys.brain_key("s"),
         keys.alive_key("s", 1),
+        keys.poses_key("s"),
     ]
     parsed = [keys.parse_key(k) for k in built]
     assert [k.kind for k in parsed if k is not None] == list(keys.KINDS)
@@ -147,3 +148,10 @@ def test_alive_key_refuses_bad_string_ids() -> None:
     for bad in ("", "a/b", "*"):
         with pytest.raises(ValueError, match="liveliness id"):
             keys.alive_key("s", bad)
+
+
+def test_poses_key_round_trips() -> None:
+    k = keys.poses_key("s1")
+    assert k == "patternrl/s1/poses"
+    assert keys.parse_key(k) == Key("s1", keys.POSES, None)
+    assert keys.with_swarm(k, "s2") == "patternrl/s2/poses"

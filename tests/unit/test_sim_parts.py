@@ -12,7 +12,7 @@ import pytest
 
 from runtime import keys
 from runtime.formation import assign_slots, formation_error, formation_error_batch, slot_distances
-from runtime.messages import Command, decode_pose, encode_command
+from runtime.messages import Command, decode_poses, encode_command
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
 from runtime.zenoh_session import open_session
@@ -91,15 +91,15 @@ def test_world_link_exchanges_a_step_with_a_robot() -> None:
                      event=lambda kind, **f: events.append((kind, f)))
     stop = threading.Event()
 
-    def answer(sample: Any) -> None:  # the robot: each pose answered with a command
-        pose = decode_pose(sample.payload.to_bytes())
+    def answer(sample: Any) -> None:  # the robot: each step's poses answered with a command
+        pose = decode_poses(sample.payload.to_bytes())
         robot.put(keys.cmd_key(swarm, 1), encode_command(
             Command(1, pose.step, 0.25, -0.5, "rule:assign", False, 0.0, 12.0)))
 
     try:
         with link:
             link.open()  # a second open declares nothing more
-            sub = robot.declare_subscriber(keys.pose_key(swarm, 1), answer)
+            sub = robot.declare_subscriber(keys.poses_key(swarm), answer)
             token = robot.liveliness().declare_token(keys.alive_key(swarm, 1))
             assert link.roster.wait_for(1, 20.0, stop) == 1
             link.add_robot(1, 0.5, 0.5)

@@ -1,0 +1,224 @@
+"""How many robot processes one machine runs in real time: the whole swarm, measured.
+
+Part 1, **realtime** (10 Hz, the deployment-like mode) with N = 10, 25, 50, 100 robot
+processes (``patternrl robot --mode realtime``, the shipped general brain, ORCA on) on
+loopback, the world in this process forming a circle (until formed or ``--max-steps``).
+Reported per N:
+
+* steps/s achieved against the 10 Hz target (steps / wall time of the phase);
+* late: the share of robot-steps whose command did not make its step (late or missing:
+  that robot held still for the step), and the world's overruns (steps whose tick had
+  passed before their poses went out);
+* pose -> command p50 / p99 (ms): from the world starting to publish a step's poses to
+  each command's arrival, over the commands that made their step;
+* CPU per robot per step (ms, user + system from /proc, start-up left out);
+* PSS per robot (MB, /proc/<pid>/smaps_rollup: shared libraries counted once across the
+  processes that share them) and RSS, median over the robots, read mid-run; start-up:
+  seconds from starting the processes to the first step (all N alive);
+* formed or not, steps, collisions (the world's swept check).
+
+Part 2, **lockstep** with N = 10 and 20 robot processes: steps/s and pose -> command
+p50 / p99 (the world waits for every command or the deadline).
+
+Part 3, **one decision** (assignment + observation + brain + ORCA, the robot's
+:class:`runtime.decision.Controller`) at N = 10, 50, 100 with the general brain, beside
+onnxruntime alone (the same brain's ``act`` on one observation) in the same run: p50 and
+p99 in microseconds, with the machine's load average printed beside them (run once on an
+idle machine and once busy to see both).
+
+    .venv/bin/python benchmarks/swarm_scale.py [--json] [--quick] [--sizes 10,25,50,100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from runtime.brain import Brain, load_brain  # noqa: E402 -- after the path set-up above
+from runtime.safety import OrcaParams  # noqa: E402
+from runtime.world_config import DEFAULT_WORLD  # noqa: E402
+
+W = DEFAULT_WORLD
+BRAIN = ROOT / "exports" / "general.onnx"
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (0 if gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+def _mem_mb(pid: int) -> tuple[float, float]:
+    """(PSS, RSS) of a process in MB from /proc/<pid>/smaps_rollup; (nan, nan) if unreadable."""
+    out = {"Pss:": float("nan"), "Rss:": float("nan")}
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            for line in f:
+                parts = line.split()
+                if parts and parts[0] in out:
+                    out[parts[0]] = int(parts[1]) / 1024.0
+    except OSError:
+        pass
+    return out["Pss:"], out["Rss:"]
+
+
+def _pct(a: list[float], q: float) -> float | None:
+    return round(float(np.percentile(a, q)), 3) if a else None
+
+
+def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0) -> dict[str, Any]:
+    """A world in this process and ``n`` robot processes; one circle (or ``max_steps``)."""
+    from runtime.zenoh_session import open_session
+    from sim_bridge.launch import Robots, free_port
+    from sim_bridge.sim_world import SimConfig, SimWorld
+
+    swarm, port = f"bench-{mode}-{n}-{os.getpid()}", free_port()
+    cfg = SimConfig(swarm=swarm, robots=n, patterns=["circle"], mode=mode, seed=seed,
+                    max_steps=max_steps, wait_robots_s=600.0, first_step_deadline_ms=10_000.0)
+    session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+    world = SimWorld(cfg, session, None, log=lambda msg, detail: None)
+    robots = Robots()
+    at: dict[str, Any] = {}
+
+    def on_progress(p: Any) -> None:
+        if p.step == 1:
+            at["t1"] = time.monotonic()
+            at["cpu1"] = {r: _cpu_s(q.pid) for r, q in robots.procs.items()}
+        if p.step == min(20, max_steps // 2):
+            mem = [_mem_mb(q.pid) for q in robots.procs.values()]
+            at["pss"] = [m[0] for m in mem]
+            at["rss"] = [m[1] for m in mem]
+
+    world.on_progress = on_progress
+    args = argparse.Namespace(mode=mode, safety="orca", rate_hz=1.0 / W.dt_s,
+                              step_deadline_ms=cfg.step_deadline_ms)
+    log = Path(os.environ.get("TMPDIR", "/tmp")) / f"{swarm}.robots.log"
+    t0 = time.monotonic()
+    try:
+        robots.start(n, swarm, port, brain, args, log)
+        res = world.run()
+        cpu_end = {r: _cpu_s(q.pid) for r, q in robots.procs.items()}
+    finally:
+        robots.stop()
+        session.close()  # type: ignore[no-untyped-call]
+        log.unlink(missing_ok=True)
+    (ph,) = res.phases
+    steps = ph.steps
+    cpu = sum(cpu_end[r] - at["cpu1"].get(r, 0.0) for r in cpu_end)
+    lat = res.latencies_ms[n:]  # the first step waits for start-up
+    return {
+        "n": n, "mode": mode, "steps": steps, "formed": ph.formed,
+        "lower_bound_steps": ph.lower_bound_steps, "collisions": ph.collisions,
+        "min_separation_m": ph.min_separation_m,
+        "steps_per_s": round(steps / ph.wall_s, 2) if ph.wall_s > 0 else None,
+        "late_share": round(ph.deadline_misses / max(1, n * steps), 4),
+        "late_commands": ph.late_commands, "world_overruns": world.overruns,
+        "latency_ms_p50": _pct(lat, 50), "latency_ms_p99": _pct(lat, 99),
+        "cpu_ms_per_robot_step": round(cpu * 1000.0 / max(1, n * (steps - 1)), 3),
+        "world_cpu_ms_per_step": round(world.stepping_cpu_s * 1000.0 / max(1, steps), 3),
+        "pss_mb_median": _pct(at.get("pss", []), 50),
+        "rss_mb_median": _pct(at.get("rss", []), 50),
+        "start_s": round(at["t1"] - t0, 2) if "t1" in at else None,
+    }
+
+
+def decision_figures(brain: Brain, n: int, samples: int) -> dict[str, Any]:
+    """One decision at team size n (runtime_latency's loop) beside onnxruntime alone."""
+    from runtime_latency import decision_latency  # benchmarks/runtime_latency.py
+
+    d = decision_latency(brain, n, samples, OrcaParams())
+    x = np.zeros((1, brain.spec.dim), np.float32)  # onnxruntime's time does not see values
+    for _ in range(200):
+        brain.act(x)
+    ort: list[float] = []
+    for _ in range(samples):
+        t = time.perf_counter_ns()
+        brain.act(x)
+        ort.append((time.perf_counter_ns() - t) / 1000.0)
+    return {"n": n, "decision_us_p50": round(d["p50_us"], 1),
+            "decision_us_p99": round(d["p99_us"], 1),
+            "quietest_round_p99_us": round(d["best_round_p99_us"], 1),
+            "onnxruntime_us_p50": round(float(np.percentile(ort, 50)), 1),
+            "onnxruntime_us_p99": round(float(np.percentile(ort, 99)), 1),
+            "ratio_p50": round(d["p50_us"] / float(np.percentile(ort, 50)), 2)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", action="store_true", help="print JSON only")
+    ap.add_argument("--quick", action="store_true",
+                    help="a smoke run: realtime 10 and 25 robots, 80 steps, fewer samples")
+    ap.add_argument("--sizes", default=None, help="realtime robot counts (default 10,25,50,100)")
+    ap.add_argument("--lockstep", default="10,20", help="lockstep robot counts (default 10,20)")
+    ap.add_argument("--max-steps", type=int, default=300,
+                    help="step limit of a run (default 300; --quick 80)")
+    ap.add_argument("--brain", default=str(BRAIN), help="the robots' brain (default general)")
+    args = ap.parse_args()
+    sizes = [int(x) for x in (args.sizes or ("10,25" if args.quick else "10,25,50,100"))
+             .split(",") if x]
+    lock = [int(x) for x in args.lockstep.split(",") if x]
+    max_steps = 80 if args.quick else args.max_steps
+    samples = 2000 if args.quick else 20000
+    load0 = os.getloadavg()[0]
+    brain = load_brain(args.brain, W, None)
+    decisions = [decision_figures(brain, n, samples) for n in (10, 50, 100)]
+    realtime = [run_swarm(n, "realtime", max_steps, args.brain) for n in sizes]
+    lockstep = [run_swarm(n, "lockstep", max_steps, args.brain) for n in lock]
+    out = {
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "platform": platform.platform(), "load_average_1min_start": round(load0, 2),
+                    "load_average_1min_end": round(os.getloadavg()[0], 2)},
+        "brain": Path(args.brain).name, "realtime": realtime, "lockstep": lockstep,
+        "decision": decisions,
+    }
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    m = out["machine"]
+    print(f"machine: {m['cpus']} cpus, python {m['python']}; 1-min load average "
+          f"{m['load_average_1min_start']} at the start, {m['load_average_1min_end']} at the end")
+    print(f"\nrealtime, 10 Hz target, brain {out['brain']}, ORCA on, one circle "
+          f"(or {max_steps} steps)")
+    head = (f"{'robots':>6} {'steps/s':>7} {'late':>6} {'p50 ms':>7} {'p99 ms':>7} "
+            f"{'cpu ms/robot/step':>17} {'PSS MB':>6} {'RSS MB':>6} {'start s':>7} "
+            f"{'formed':>6} {'steps':>5} {'lb':>4} {'collisions':>10}")
+    print(head)
+    for r in [*realtime, None, *lockstep]:
+        if r is None:
+            print("\nlockstep (the world waits for every command, deadline 250 ms)")
+            print(head)
+            continue
+        print(f"{r['n']:>6} {r['steps_per_s']:>7} {100 * r['late_share']:>5.1f}% "
+              f"{r['latency_ms_p50']!s:>7} {r['latency_ms_p99']!s:>7} "
+              f"{r['cpu_ms_per_robot_step']:>17.3f} {r['pss_mb_median']!s:>6} "
+              f"{r['rss_mb_median']!s:>6} {r['start_s']!s:>7} "
+              f"{'yes' if r['formed'] else 'no':>6} {r['steps']:>5} "
+              f"{r['lower_bound_steps']:>4} {r['collisions']:>10}")
+    print("\none decision (Controller.decide, general brain, ORCA on) beside onnxruntime alone")
+    print(f"{'N':>4} {'p50 us':>7} {'p99 us':>7} {'quiet p99':>9} {'ort p50':>7} "
+          f"{'ort p99':>7} {'p50 ratio':>9}")
+    for d in decisions:
+        print(f"{d['n']:>4} {d['decision_us_p50']:>7} {d['decision_us_p99']:>7} "
+              f"{d['quietest_round_p99_us']:>9} {d['onnxruntime_us_p50']:>7} "
+              f"{d['onnxruntime_us_p99']:>7} {d['ratio_p50']:>8}x")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
