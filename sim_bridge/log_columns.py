@@ -139,6 +139,24 @@ def decode_poses(raw: list[bytes], idx: list[int], key_rid: list[int]
     return rec[good], np.asarray(idx, np.int64)[good], bad
 
 
+def _command_columns(rec: NDArray[Any], order: IntArray, blen: int,
+                     brain_ids: list[str]) -> tuple[Any, ...]:
+    """Columns of a batch of decoded command records whose brain ids are ``blen`` bytes.
+
+    New brain ids are appended to ``brain_ids``; each row's index points into it.
+    """
+    if blen:
+        names, inv = np.unique(rec["brain"], return_inverse=True)
+        index = inv.astype(np.int64).reshape(-1) + len(brain_ids)
+        brain_ids += [bytes(b).decode("utf-8", "replace") for b in names]
+    else:
+        index = np.full(len(rec), len(brain_ids), np.int64)
+        brain_ids.append("")
+    return (rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
+            np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64).reshape(-1, 2),
+            rec["safety_changed"].astype(bool), index, order)
+
+
 def decode_commands(raw: list[bytes], key_rid: list[int], idx: list[int] | None = None
                     ) -> tuple[Commands, int]:
     """Command payloads as :class:`Commands`, in the order given; (commands, malformed).
@@ -169,18 +187,7 @@ def decode_commands(raw: list[bytes], key_rid: list[int], idx: list[int] | None 
             & (rec["robot_id"].astype(np.int64) == np.asarray([key_rid[k] for k in ks]))
         )
         bad += int((~good).sum())
-        rec = rec[good]
-        order = np.asarray(ks, np.int64)[good]
-        if blen:
-            names, inv = np.unique(rec["brain"], return_inverse=True)
-            index = inv.astype(np.int64).reshape(-1) + len(brain_ids)
-            brain_ids += [bytes(b).decode("utf-8", "replace") for b in names]
-        else:
-            index = np.full(len(rec), len(brain_ids), np.int64)
-            brain_ids.append("")
-        cols.append((rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
-                     np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64),
-                     rec["safety_changed"].astype(bool), index, order))
+        cols.append(_command_columns(rec[good], np.asarray(ks, np.int64)[good], blen, brain_ids))
     if not cols:
         return Commands.empty(), bad
     order = np.argsort(np.concatenate([c[5] for c in cols]), kind="stable")
@@ -300,18 +307,8 @@ def decode_commands_pb(raw: list[bytes], key_rid: list[int], idx: list[int]
         fixed = _tags_ok(rec, pb.COMMAND_PB_TAGS) & (rec["brain_len"] == blen) & (
             rec["safety_changed"] <= 1)
         other += [ks[k] for k in np.flatnonzero(~fixed).tolist()]
-        rec = rec[fixed]
-        ks_ok = np.asarray(ks, np.int64)[fixed]
-        if blen:
-            names, inv = np.unique(rec["brain"], return_inverse=True)
-            index = inv.astype(np.int64).reshape(-1) + len(brain_ids)
-            brain_ids += [bytes(b).decode("utf-8", "replace") for b in names]
-        else:
-            index = np.full(len(rec), len(brain_ids), np.int64)
-            brain_ids.append("")
-        cols.append((rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
-                     np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64).reshape(-1, 2),
-                     rec["safety_changed"].astype(bool), index, ks_ok))
+        cols.append(_command_columns(rec[fixed], np.asarray(ks, np.int64)[fixed], blen,
+                                     brain_ids))
     msgs, pos, bad = _parse_each(pb.ROBOT_COMMAND, raw, other)
     if msgs:
         index = np.arange(len(msgs), dtype=np.int64) + len(brain_ids)
