@@ -55,8 +55,11 @@ def test_an_outsider_peer_cannot_steer_the_swarm(procs: Any, tmp_path: Path, kit
     import os
 
     swarm, port, log = f"e2e-attack-{os.getpid()}", kit.free_port(), tmp_path / "attack.mcap"
+    # realtime at 10 Hz: the run lasts seconds of wall clock however busy the machine is, so
+    # every round of attacks lands on a running swarm
     world = procs.world(swarm, port, "--robots", str(N), "--patterns", "circle,line,cross",
-                        "--seed", "4", "--record", str(log), "--json", "--wait-robots-s", "60")
+                        "--seed", "4", "--record", str(log), "--json", "--wait-robots-s", "60",
+                        "--mode", "realtime")
     unsigned = kit.write_test_brain(tmp_path, "unsigned", sign=False)
     onnx = unsigned.read_bytes()
     manifest = unsigned.with_suffix(".json").read_text()
@@ -87,7 +90,8 @@ def test_an_outsider_peer_cannot_steer_the_swarm(procs: Any, tmp_path: Path, kit
     token = None
     robots = []
     try:
-        robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2") for i in range(N)]
+        robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2", "--mode", "realtime")
+                  for i in range(N)]
         kit.wait_for(lambda: watcher.step() >= 1 and versions, 60, "the swarm to start")
         v = max(versions)
         huge = _pattern_payload(v + 1, np.zeros((65_536, 2)))

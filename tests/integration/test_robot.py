@@ -33,6 +33,7 @@ from runtime.messages import (
     encode_pose,
 )
 from runtime.patterns import make_pattern
+from runtime.signing import generate_key
 from runtime.swap import swap_brain
 from runtime.world_config import DEFAULT_WORLD
 
@@ -206,7 +207,7 @@ class Stepper(threading.Thread):
         except BaseException as e:  # reported by the test
             self.error = e
 
-    def wait_steps(self, k: int, timeout: float = 20.0) -> None:
+    def wait_steps(self, k: int, timeout: float = 120.0) -> None:  # a step may take 30 s
         target = self.step + k
         wait_for(lambda: self.step >= target or self.error, timeout, f"{k} more steps")
         assert self.error is None, self.error
@@ -217,7 +218,6 @@ class Stepper(threading.Thread):
         assert self.error is None, self.error
 
 
-from runtime.signing import generate_key  # noqa: E402
 
 
 def run_swap_cli(world: StubWorld, brain: str, *extra: str) -> subprocess.CompletedProcess[str]:
