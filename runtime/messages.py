@@ -1,13 +1,16 @@
 """Every message of Pattern-RL, with its ``encode`` right beside its ``decode``.
 
 Wire format: compact little-endian binary built with :mod:`struct`, never pickle. Every
-payload starts with a 1-byte message tag and a 1-byte format version (:data:`VERSION`)::
+payload starts with a 1-byte message tag and a 1-byte format version (:data:`VERSION`,
+but :data:`COMMAND_VERSION` for a command; decoders also read older ones)::
 
     Pose     <BB I Q d d d d d I>                 tag, version, robot_id, step, time_s,
                                                   x, y, vx, vy, n_live           (58 bytes)
-    Command  <BB I Q d d B d d H> + brain_id       tag, version, robot_id, step, vx, vy,
+    Command  <BB I Q d d B d d d d H> + brain_id   tag, version (2), robot_id, step, vx, vy,
                                                   safety_changed, safety_change_mps,
-                                                  decision_us, len(brain_id)  + utf-8
+                                                  decision_us, brain_vx, brain_vy,
+                                                  len(brain_id)  + utf-8; version 1 had
+                                                  no brain_vx, brain_vy (read as vx, vy)
     Status   <BB> + utf-8 JSON object             once a second: readability beats bytes
     Pattern  <BB Q d H I> + name + points         tag, version, pattern version, formed_tol_m,
                                                   len(name), n points; utf-8 name; n x 2 f64
@@ -41,6 +44,7 @@ import numpy.typing as npt
 from runtime.patterns import MAX_PATTERN_COORD_M
 from runtime.pose_batch import MAX_POSES_ROBOTS, PoseBatch, decode_poses, encode_poses
 from runtime.wire_codec import (
+    COMMAND_VERSION,
     HEADER,
     LEN32,
     U32,
@@ -54,6 +58,7 @@ from runtime.wire_codec import (
     check_header,
     columns,
     finite,
+    json_object,
     read_text,
     uint,
     utf8,
@@ -61,6 +66,8 @@ from runtime.wire_codec import (
 
 __all__ = [
     "COMMAND_HEAD_DTYPE",
+    "COMMAND_HEAD_DTYPE_V1",
+    "COMMAND_VERSION",
     "MAX_BRAIN_ID_CHARS",
     "MAX_MANIFEST_BYTES",
     "MAX_ONNX_BYTES",
@@ -187,7 +194,9 @@ class Command:
 
     ``brain_id`` names the brain that decided (a sha256 hex prefix, at most 64 chars).
     ``safety_changed`` tells whether the safety filter altered the brain's output, by
-    ``safety_change_mps``; ``decision_us`` is how long the decision took.
+    ``safety_change_mps``; ``decision_us`` is how long the decision took. ``brain_vx``,
+    ``brain_vy`` (m/s) is what the brain asked for, before the clamp and the filter; left
+    out (NaN), and in a version 1 payload, it is the command's own ``vx``, ``vy``.
     """
 
     robot_id: int
@@ -198,27 +207,38 @@ class Command:
     safety_changed: bool
     safety_change_mps: float
     decision_us: float
+    brain_vx: float = math.nan
+    brain_vy: float = math.nan
+
+    def __post_init__(self) -> None:
+        if self.brain_vx != self.brain_vx:  # NaN: not given
+            object.__setattr__(self, "brain_vx", self.vx)
+        if self.brain_vy != self.brain_vy:
+            object.__setattr__(self, "brain_vy", self.vy)
 
 
-_COMMAND: Final = struct.Struct("<BBIQddBddH")
-COMMAND_HEAD_DTYPE: Final = columns(_COMMAND, (
-    "tag", "version", "robot_id", "step", "vx", "vy", "safety_changed", "safety_change_mps",
-    "decision_us", "brain_len"))
+_COMMAND: Final = struct.Struct("<BBIQddBddddH")
+_COMMAND_V1: Final = struct.Struct("<BBIQddBddH")
+_HEAD_NAMES: Final = ("tag", "version", "robot_id", "step", "vx", "vy", "safety_changed",
+                      "safety_change_mps", "decision_us")
+COMMAND_HEAD_DTYPE: Final = columns(_COMMAND, (*_HEAD_NAMES, "brain_vx", "brain_vy",
+                                               "brain_len"))
 """The fixed part of a command payload as one numpy record (the brain id follows it)."""
+COMMAND_HEAD_DTYPE_V1: Final = columns(_COMMAND_V1, (*_HEAD_NAMES, "brain_len"))
+"""The same for a version 1 payload (no brain_vx, brain_vy)."""
 
 
-def command_dtype(brain_len: int) -> np.dtype[np.void]:
-    """A whole command payload whose brain id is ``brain_len`` bytes: the head, then ``brain``."""
-    if brain_len == 0:
-        return COMMAND_HEAD_DTYPE
-    return np.dtype([*COMMAND_HEAD_DTYPE.descr, ("brain", f"S{brain_len}")])
+def command_dtype(brain_len: int, version: int = COMMAND_VERSION) -> np.dtype[np.void]:
+    """A command payload of format ``version``, brain id ``brain_len`` bytes (``brain``)."""
+    head = COMMAND_HEAD_DTYPE if version == COMMAND_VERSION else COMMAND_HEAD_DTYPE_V1
+    return np.dtype([*head.descr, ("brain", f"S{brain_len}")]) if brain_len else head
 
 
 _MAX_BRAIN_ID_BYTES: Final = 4 * MAX_BRAIN_ID_CHARS
 
 
 def encode_command(msg: Command) -> bytes:
-    """Encode a :class:`Command`: 49 bytes plus the utf-8 brain id."""
+    """Encode a :class:`Command` (version 2): 65 bytes plus the utf-8 brain id."""
     w = "command"
     brain = utf8(w, "brain_id", msg.brain_id, _MAX_BRAIN_ID_BYTES, MAX_BRAIN_ID_CHARS)
     if not isinstance(msg.safety_changed, bool):
@@ -227,38 +247,37 @@ def encode_command(msg: Command) -> bytes:
         )
     try:
         head = _COMMAND.pack(
-            Tag.COMMAND,
-            VERSION,
-            uint(w, "robot_id", msg.robot_id, U32),
-            uint(w, "step", msg.step, U64),
-            finite(w, "vx", msg.vx),
-            finite(w, "vy", msg.vy),
-            int(msg.safety_changed),
-            finite(w, "safety_change_mps", msg.safety_change_mps),
-            finite(w, "decision_us", msg.decision_us),
-            len(brain),
-        )
+            Tag.COMMAND, COMMAND_VERSION, uint(w, "robot_id", msg.robot_id, U32),
+            uint(w, "step", msg.step, U64), finite(w, "vx", msg.vx), finite(w, "vy", msg.vy),
+            int(msg.safety_changed), finite(w, "safety_change_mps", msg.safety_change_mps),
+            finite(w, "decision_us", msg.decision_us), finite(w, "brain_vx", msg.brain_vx),
+            finite(w, "brain_vy", msg.brain_vy), len(brain))
     except (struct.error, TypeError) as e:
         raise MessageError(f"cannot encode command: {e}") from None
     return head + brain
 
 
 def decode_command(payload: Buffer) -> Command:
-    """Decode a payload written by :func:`encode_command`."""
+    """Decode a payload written by :func:`encode_command`, of format version 1 or 2."""
     w = "command"
     view = as_view(payload, w)
-    check_header(view, Tag.COMMAND)
     r = Reader(view, w, 0)
-    _, _, rid, step, vx, vy, changed, change, dec_us, n = r.unpack(_COMMAND, "the fixed part")
+    if check_header(view, Tag.COMMAND) == 1:
+        _, _, rid, step, vx, vy, changed, change, dec_us, n = r.unpack(_COMMAND_V1, "the head")
+        bvx, bvy = vx, vy
+    else:
+        _, _, rid, step, vx, vy, changed, change, dec_us, bvx, bvy, n = r.unpack(
+            _COMMAND, "the fixed part")
     if changed not in (0, 1):
         raise MessageError(f"command.safety_changed must be 0 or 1, got {changed}")
-    for name, v in (("vx", vx), ("vy", vy), ("safety_change_mps", change), ("decision_us", dec_us)):
+    for name, v in (("vx", vx), ("vy", vy), ("safety_change_mps", change),
+                    ("decision_us", dec_us), ("brain_vx", bvx), ("brain_vy", bvy)):
         finite(w, name, v)
     if n > _MAX_BRAIN_ID_BYTES:
         raise MessageError(f"command.brain_id claims {n} bytes, at most {_MAX_BRAIN_ID_BYTES}")
     brain = read_text(w, "brain_id", r.take(n, "brain_id"), MAX_BRAIN_ID_CHARS)
     r.finish()
-    return Command(rid, step, vx, vy, brain, bool(changed), change, dec_us)
+    return Command(rid, step, vx, vy, brain, bool(changed), change, dec_us, bvx, bvy)
 
 
 # -- Status ---------------------------------------------------------------------------------
@@ -346,17 +365,6 @@ def encode_status(msg: Status) -> bytes:
     return out
 
 
-def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    out = dict(pairs)
-    if len(out) != len(pairs):
-        raise MessageError("status JSON repeats a key")
-    return out
-
-
-def _no_constant(token: str) -> object:
-    raise MessageError(f"status JSON holds non-finite number {token}")
-
-
 def decode_status(payload: Buffer) -> Status:
     """Decode a payload written by :func:`encode_status`."""
     view = as_view(payload, "status")
@@ -364,15 +372,7 @@ def decode_status(payload: Buffer) -> Status:
     if len(view) > MAX_STATUS_BYTES:
         raise MessageError(f"status is {len(view)} bytes, at most {MAX_STATUS_BYTES}")
     text = read_text("status", "body", view[2:])
-    try:
-        body = json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_no_constant)
-    except MessageError:
-        raise
-    except (ValueError, RecursionError) as e:
-        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise MessageError(f"status is not valid JSON: {reason}") from None
-    if not isinstance(body, dict):
-        raise MessageError(f"status JSON must be an object, got {type(body).__name__}")
+    body = json_object("status", text)
     missing = [k for k in _STATUS_KINDS if k not in body]
     if missing:
         raise MessageError(f"status JSON lacks {', '.join(missing)}")

@@ -327,6 +327,9 @@ class Robot:
         self.pattern.use_brain(brain)
 
     def _publish_cmd(self, step: int, d: Decision) -> None:
+        bvx, bvy = d.brain_velocity
+        if not (math.isfinite(bvx) and math.isfinite(bvy)):  # the robot held still
+            bvx, bvy = d.velocity
         cmd = Command(
             robot_id=self.id,
             step=step,
@@ -336,6 +339,8 @@ class Robot:
             safety_changed=d.safety_changed,
             safety_change_mps=d.safety_change_mps if math.isfinite(d.safety_change_mps) else 0.0,
             decision_us=d.decision_us,
+            brain_vx=bvx,
+            brain_vy=bvy,
         )
         self._cmd_pub.put(encode_command(cmd))
 

@@ -8,6 +8,7 @@ a one-line reason; the messages themselves live in :mod:`runtime.messages`.
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 from enum import IntEnum
@@ -17,9 +18,6 @@ import numpy as np
 
 Buffer: TypeAlias = bytes | bytearray | memoryview
 """What decoders accept: any contiguous bytes-like payload."""
-
-VERSION: Final = 1
-"""Wire format version written by this build; decoders accept exactly this version."""
 
 U32: Final = (1 << 32) - 1
 U64: Final = (1 << 64) - 1
@@ -40,6 +38,21 @@ class Tag(IntEnum):
     POSES = 6
 
 
+VERSION: Final = 1
+"""Format version of every message this build writes, but those in :data:`VERSIONS`."""
+COMMAND_VERSION: Final = 2
+"""Command format version this build writes: version 2 added the brain's own velocity."""
+VERSIONS: Final[dict[int, int]] = {Tag.COMMAND: COMMAND_VERSION}
+"""Tag -> the format version this build writes, where it is not :data:`VERSION`."""
+READS: Final[dict[int, tuple[int, ...]]] = {Tag.COMMAND: (1, COMMAND_VERSION)}
+"""Tag -> every format version this build decodes, where more than the one it writes."""
+
+
+def reads(tag: int) -> tuple[int, ...]:
+    """The format versions of ``tag`` this build decodes (the newest last)."""
+    return READS.get(tag) or (VERSIONS.get(tag, VERSION),)
+
+
 def tag_name(tag: int) -> str:
     try:
         return Tag(tag).name.lower()
@@ -47,16 +60,20 @@ def tag_name(tag: int) -> str:
         return "unknown"
 
 
-def check_header(buf: Buffer, tag: Tag) -> None:
-    """Raise MessageError unless ``buf`` starts with ``tag`` and :data:`VERSION`."""
+def check_header(buf: Buffer, tag: Tag) -> int:
+    """The format version of ``buf``; MessageError unless it starts with ``tag`` and a
+    version this build reads (:func:`reads`)."""
     what = tag.name.lower()
     if len(buf) < 2:
         raise MessageError(f"truncated {what}: {len(buf)} bytes, no room for the 2-byte header")
     got = buf[0]
     if got != tag:
         raise MessageError(f"expected {what} (tag {int(tag)}), got {tag_name(got)} (tag {got})")
-    if buf[1] != VERSION:
-        raise MessageError(f"unsupported {what} version {buf[1]} (this build reads {VERSION})")
+    ok = reads(tag)
+    if buf[1] not in ok:
+        known = " or ".join(map(str, ok))
+        raise MessageError(f"unsupported {what} version {buf[1]} (this build reads {known})")
+    return int(buf[1])
 
 
 HEADER: Final = struct.Struct("<BB")
@@ -109,6 +126,31 @@ def read_text(what: str, name: str, raw: Buffer, max_chars: int = -1) -> str:
     if 0 <= max_chars < len(value):
         raise MessageError(f"{what}.{name} is {len(value)} chars, at most {max_chars} allowed")
     return value
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise MessageError("JSON repeats a key")
+    return out
+
+
+def _no_constant(token: str) -> object:
+    raise MessageError(f"JSON holds non-finite number {token}")
+
+
+def json_object(what: str, text: str) -> dict[str, Any]:
+    """``text`` as a JSON object: MessageError for bad JSON, repeated keys, NaN or Infinity."""
+    try:
+        body = json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_no_constant)
+    except MessageError as e:
+        raise MessageError(f"{what} {e}") from None
+    except (ValueError, RecursionError) as e:
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise MessageError(f"{what} is not valid JSON: {reason}") from None
+    if not isinstance(body, dict):
+        raise MessageError(f"{what} JSON must be an object, got {type(body).__name__}")
+    return body
 
 
 class Reader:

@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.messages import COMMAND_HEAD_DTYPE, POSE_DTYPE, VERSION, Tag, command_dtype
+from runtime.messages import POSE_DTYPE, VERSION, Tag, command_dtype
 from runtime.types import Array, BoolArray, IntArray
+from runtime.wire_codec import reads
 from sim_bridge import log_schemas as pb
 
 
@@ -37,6 +38,9 @@ class Commands:
     """(m,) index into :attr:`brain_ids` of the brain that decided each command"""
     brain_ids: list[str]
     """the brain ids on the log (one run has one or a few: stored once)"""
+    brain_v: Array
+    """(m, 2) m/s: what the brain asked for, before the clamp and the safety filter (``v``
+    where the log predates it)"""
 
     @property
     def brain(self) -> list[str]:
@@ -56,7 +60,7 @@ class Commands:
     def select(self, sel: BoolArray) -> Commands:
         """The commands where ``sel`` (m,) holds."""
         return Commands(self.robot_id[sel], self.step[sel], self.v[sel], self.safety_changed[sel],
-                        self.brain_index[sel], self.brain_ids)
+                        self.brain_index[sel], self.brain_ids, self.brain_v[sel])
 
     def concat(self, other: Commands) -> Commands:
         """These commands, then ``other``'s (file order is the caller's: see ``order``)."""
@@ -69,12 +73,12 @@ class Commands:
             np.concatenate([self.step, other.step]), np.concatenate([self.v, other.v]),
             np.concatenate([self.safety_changed, other.safety_changed]),
             np.concatenate([self.brain_index, other.brain_index + len(self.brain_ids)]),
-            self.brain_ids + other.brain_ids)
+            self.brain_ids + other.brain_ids, np.concatenate([self.brain_v, other.brain_v]))
 
     @staticmethod
     def empty() -> Commands:
         return Commands(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)),
-                        np.zeros(0, bool), np.zeros(0, np.int64), [])
+                        np.zeros(0, bool), np.zeros(0, np.int64), [], np.zeros((0, 2)))
 
 
 @dataclass
@@ -143,7 +147,8 @@ def _command_columns(rec: NDArray[Any], order: IntArray, blen: int,
                      brain_ids: list[str]) -> tuple[Any, ...]:
     """Columns of a batch of decoded command records whose brain ids are ``blen`` bytes.
 
-    New brain ids are appended to ``brain_ids``; each row's index points into it.
+    New brain ids are appended to ``brain_ids``; each row's index points into it. Records
+    without ``brain_vx``, ``brain_vy`` (older layouts) give ``v`` as the brain velocity.
     """
     if blen:
         names, inv = np.unique(rec["brain"], return_inverse=True)
@@ -152,14 +157,34 @@ def _command_columns(rec: NDArray[Any], order: IntArray, blen: int,
     else:
         index = np.full(len(rec), len(brain_ids), np.int64)
         brain_ids.append("")
-    return (rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64),
-            np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64).reshape(-1, 2),
-            rec["safety_changed"].astype(bool), index, order)
+    v = np.stack([rec["vx"], rec["vy"]], axis=1).astype(np.float64).reshape(-1, 2)
+    bv = (np.stack([rec["brain_vx"], rec["brain_vy"]], axis=1).astype(np.float64).reshape(-1, 2)
+          if "brain_vx" in (rec.dtype.names or ()) else v.copy())
+    return (rec["robot_id"].astype(np.int64), rec["step"].astype(np.int64), v,
+            rec["safety_changed"].astype(bool), index, order, bv)
+
+
+_Cols = tuple[IntArray, IntArray, Array, BoolArray, IntArray, IntArray, Array]
+
+
+def _joined(raw: list[bytes], ks: list[int]) -> bytes:
+    return b"".join(raw) if len(ks) == len(raw) else b"".join([raw[k] for k in ks])
+
+
+def _gather(cols: list[_Cols], brain_ids: list[str], sel: IntArray | None = None) -> Commands:
+    """One :class:`Commands` of column batches ``cols``, rows ``sel`` of their concatenation
+    (all, in batch order, when None)."""
+    parts = [np.concatenate([c[j] for c in cols]) for j in (0, 1, 2, 3, 4, 6)]
+    if sel is not None:
+        parts = [p[sel] for p in parts]
+    rid, step, v, changed, index, bv = parts
+    return Commands(rid, step, v, changed, index, brain_ids, bv)
 
 
 def decode_commands(raw: list[bytes], key_rid: list[int], idx: list[int] | None = None
                     ) -> tuple[Commands, int]:
-    """Command payloads as :class:`Commands`, in the order given; (commands, malformed).
+    """Command payloads (wire format version 1 or 2) as :class:`Commands`, in the order
+    given; (commands, malformed).
 
     ``idx`` (message indices) is accepted for symmetry with :func:`decode_commands_pb`.
     """
@@ -170,32 +195,41 @@ def decode_commands(raw: list[bytes], key_rid: list[int], idx: list[int] | None 
     else:
         for k, n in enumerate(lengths):
             by_len.setdefault(n, []).append(k)
-    cols: list[tuple[IntArray, IntArray, Array, BoolArray, IntArray, IntArray]] = []
+    groups: list[tuple[int, int, list[int]]] = []  # (length, format version, positions)
+    for length, ks in by_len.items():
+        if length < 2:
+            groups.append((length, -1, ks))
+            continue
+        versions = np.frombuffer(_joined(raw, ks), np.uint8)[1::length]
+        for version in np.unique(versions).tolist():
+            sel = versions == version
+            groups.append((length, version, ks if sel.all() else
+                           [ks[k] for k in np.flatnonzero(sel).tolist()]))
+    cols: list[_Cols] = []
     brain_ids: list[str] = []
     bad = 0
-    for length, ks in by_len.items():
-        blen = length - COMMAND_HEAD_DTYPE.itemsize
+    for length, version, ks in groups:
+        if version not in reads(Tag.COMMAND):
+            bad += len(ks)
+            continue
+        blen = length - command_dtype(0, version).itemsize
         if blen < 0:
             bad += len(ks)
             continue
-        joined = b"".join(raw) if len(ks) == len(raw) else b"".join([raw[k] for k in ks])
-        rec = np.frombuffer(joined, dtype=command_dtype(blen))
+        rec = np.frombuffer(_joined(raw, ks), dtype=command_dtype(blen, version))
         good = (
-            (rec["tag"] == Tag.COMMAND) & (rec["version"] == VERSION)
-            & (rec["brain_len"] == blen) & (rec["safety_changed"] <= 1)
+            (rec["tag"] == Tag.COMMAND) & (rec["brain_len"] == blen) & (rec["safety_changed"] <= 1)
             & np.isfinite(rec["vx"]) & np.isfinite(rec["vy"])
             & (rec["robot_id"].astype(np.int64) == np.asarray([key_rid[k] for k in ks]))
         )
+        if "brain_vx" in (rec.dtype.names or ()):
+            good &= np.isfinite(rec["brain_vx"]) & np.isfinite(rec["brain_vy"])
         bad += int((~good).sum())
         cols.append(_command_columns(rec[good], np.asarray(ks, np.int64)[good], blen, brain_ids))
     if not cols:
         return Commands.empty(), bad
     order = np.argsort(np.concatenate([c[5] for c in cols]), kind="stable")
-    return Commands(
-        np.concatenate([c[0] for c in cols])[order], np.concatenate([c[1] for c in cols])[order],
-        np.concatenate([c[2] for c in cols])[order], np.concatenate([c[3] for c in cols])[order],
-        np.concatenate([c[4] for c in cols])[order], brain_ids,
-    ), bad
+    return _gather(cols, brain_ids, order), bad
 
 
 def frames_of(rec: NDArray[Any], idx: IntArray) -> Frames:
@@ -282,10 +316,12 @@ def decode_poses_pb(raw: list[bytes], idx: list[int], key_rid: list[int]
 
 def decode_commands_pb(raw: list[bytes], key_rid: list[int], idx: list[int]
                        ) -> tuple[Commands, int]:
-    """``patternrl.RobotCommand`` payloads as :class:`Commands`, in message order."""
+    """``patternrl.RobotCommand`` payloads as :class:`Commands`, in message order.
+
+    Today's fixed layout first, then the older one (no brain velocity), then protobuf.
+    """
     if not raw:
         return Commands.empty(), 0
-    head = pb.command_pb_dtype(0).itemsize
     by_len: dict[int, list[int]] = {}
     lengths = list(map(len, raw))
     if len(set(lengths)) == 1:
@@ -293,22 +329,21 @@ def decode_commands_pb(raw: list[bytes], key_rid: list[int], idx: list[int]
     else:
         for k, n in enumerate(lengths):
             by_len.setdefault(n, []).append(k)
-    cols: list[tuple[IntArray, IntArray, Array, BoolArray, IntArray, IntArray]] = []
+    cols: list[_Cols] = []
     brain_ids: list[str] = []
     other: list[int] = []
-    bad = 0
     for length, ks in by_len.items():
-        blen = length - head
-        if not 0 <= blen <= pb.MAX_FIXED_BRAIN_BYTES:
-            other += ks
-            continue
-        joined = b"".join(raw) if len(ks) == len(raw) else b"".join([raw[k] for k in ks])
-        rec = np.frombuffer(joined, dtype=pb.command_pb_dtype(blen))
-        fixed = _tags_ok(rec, pb.COMMAND_PB_TAGS) & (rec["brain_len"] == blen) & (
-            rec["safety_changed"] <= 1)
-        other += [ks[k] for k in np.flatnonzero(~fixed).tolist()]
-        cols.append(_command_columns(rec[fixed], np.asarray(ks, np.int64)[fixed], blen,
-                                     brain_ids))
+        for old, tags in ((False, pb.COMMAND_PB_TAGS), (True, pb.COMMAND_PB_TAGS_V1)):
+            blen = length - pb.command_pb_dtype(0, old).itemsize
+            if not ks or not 0 <= blen <= pb.MAX_FIXED_BRAIN_BYTES:
+                continue
+            rec = np.frombuffer(_joined(raw, ks), dtype=pb.command_pb_dtype(blen, old))
+            fixed = _tags_ok(rec, tags) & (rec["brain_len"] == blen) & (
+                rec["safety_changed"] <= 1)
+            cols.append(_command_columns(rec[fixed], np.asarray(ks, np.int64)[fixed], blen,
+                                         brain_ids))
+            ks = [ks[k] for k in np.flatnonzero(~fixed).tolist()]
+        other += ks
     msgs, pos, bad = _parse_each(pb.ROBOT_COMMAND, raw, other)
     if msgs:
         index = np.arange(len(msgs), dtype=np.int64) + len(brain_ids)
@@ -317,16 +352,16 @@ def decode_commands_pb(raw: list[bytes], key_rid: list[int], idx: list[int]
                      np.asarray([m.step for m in msgs], np.uint64).astype(np.int64),
                      np.asarray([(m.vx, m.vy) for m in msgs], np.float64).reshape(-1, 2),
                      np.asarray([m.safety_changed for m in msgs], bool),
-                     index, np.asarray(pos, np.int64)))
+                     index, np.asarray(pos, np.int64),
+                     np.asarray([pb.brain_velocity(m) for m in msgs], np.float64).reshape(-1, 2)))
     if not cols:
         return Commands.empty(), bad
     pos_all = np.concatenate([c[5] for c in cols])
     rid = np.concatenate([c[0] for c in cols])
     v = np.concatenate([c[2] for c in cols])
-    good = (rid == np.asarray(key_rid, np.int64)[pos_all]) & np.isfinite(v).all(axis=1)
+    bv = np.concatenate([c[6] for c in cols])
+    good = ((rid == np.asarray(key_rid, np.int64)[pos_all]) & np.isfinite(v).all(axis=1)
+            & np.isfinite(bv).all(axis=1))
     bad += int((~good).sum())
     order = np.argsort(np.asarray(idx, np.int64)[pos_all][good], kind="stable")
-    sel = np.flatnonzero(good)[order]
-    return Commands(rid[sel], np.concatenate([c[1] for c in cols])[sel], v[sel],
-                    np.concatenate([c[3] for c in cols])[sel],
-                    np.concatenate([c[4] for c in cols])[sel], brain_ids), bad
+    return _gather(cols, brain_ids, np.flatnonzero(good)[order]), bad

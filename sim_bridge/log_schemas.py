@@ -9,7 +9,9 @@ this project. Our own messages (package ``patternrl``, file ``patternrl/log.prot
                   5 y double, 6 vx double, 7 vy double, 8 n_live fixed32      (m, m/s, s)
     RobotCommand  1 robot_id fixed32, 2 step fixed64, 3 vx double, 4 vy double,
                   5 safety_changed bool, 6 safety_change_mps double,
-                  7 decision_us double, 8 brain_id string
+                  7 decision_us double, 8 brain_id string, 9 brain_vx optional double,
+                  10 brain_vy optional double   (the brain's own velocity, m/s, before the
+                  clamp and the safety filter; absent in older logs: read as vx, vy)
     RobotStatus   the fields of runtime.messages.Status, numbered in their order
     Pattern       1 version uint64, 2 name string, 3 formed_tol_m double,
                   4 x repeated double, 5 y repeated double                       (metres)
@@ -18,7 +20,8 @@ this project. Our own messages (package ``patternrl``, file ``patternrl/log.prot
     RawSample     1 key string, 2 size uint64, 3 reason string, 4 payload bytes
 
 Fixed-width fields make a pose or command the recorder writes one fixed layout
-(:data:`POSE_PB_DTYPE`, :func:`command_pb_dtype`): the reader views a whole run's
+(:data:`POSE_PB_DTYPE`, :func:`command_pb_dtype`; a command's fields 9 and 10 come
+before its brain id, field 8, and older logs lack them): the reader views a whole run's
 payloads as numpy columns at once and parses with protobuf only the payloads of
 another layout (another writer, proto3 zeros left out). :func:`encode_pose_pb`
 and :func:`encode_command_pb` write that layout with :mod:`struct`; a unit test
@@ -56,7 +59,7 @@ _F = descriptor_pb2.FieldDescriptorProto
 _FIXED32, _FIXED64, _DOUBLE, _BOOL, _STRING, _BYTES = (
     _F.TYPE_FIXED32, _F.TYPE_FIXED64, _F.TYPE_DOUBLE, _F.TYPE_BOOL, _F.TYPE_STRING, _F.TYPE_BYTES)
 _UINT32, _UINT64 = _F.TYPE_UINT32, _F.TYPE_UINT64
-_REPEATED = "repeated"
+_REPEATED, _OPTIONAL = "repeated", "optional"
 
 _MESSAGES: Final[dict[str, list[tuple[str, int] | tuple[str, int, str]]]] = {
     "RobotPose": [("robot_id", _FIXED32), ("step", _FIXED64), ("time_s", _DOUBLE),
@@ -64,7 +67,8 @@ _MESSAGES: Final[dict[str, list[tuple[str, int] | tuple[str, int, str]]]] = {
                   ("n_live", _FIXED32)],
     "RobotCommand": [("robot_id", _FIXED32), ("step", _FIXED64), ("vx", _DOUBLE),
                      ("vy", _DOUBLE), ("safety_changed", _BOOL), ("safety_change_mps", _DOUBLE),
-                     ("decision_us", _DOUBLE), ("brain_id", _STRING)],
+                     ("decision_us", _DOUBLE), ("brain_id", _STRING),
+                     ("brain_vx", _DOUBLE, _OPTIONAL), ("brain_vy", _DOUBLE, _OPTIONAL)],
     "RobotStatus": [("robot_id", _UINT32), ("step", _UINT64), ("brain_id", _STRING),
                     ("decision_latency_us_p50", _DOUBLE), ("decision_latency_us_p99", _DOUBLE),
                     ("loop_jitter_ms", _DOUBLE), ("messages_dropped", _UINT64),
@@ -87,8 +91,12 @@ def _file_proto() -> descriptor_pb2.FileDescriptorProto:
     for name, spec in _MESSAGES.items():
         m = fdp.message_type.add(name=name)
         for number, f in enumerate(spec, start=1):
-            label = _F.LABEL_REPEATED if len(f) == 3 else _F.LABEL_OPTIONAL
-            m.field.add(name=f[0], number=number, type=f[1], label=label, json_name=f[0])
+            label = _F.LABEL_REPEATED if f[2:] == (_REPEATED,) else _F.LABEL_OPTIONAL
+            field = m.field.add(name=f[0], number=number, type=f[1], label=label, json_name=f[0])
+            if f[2:] == (_OPTIONAL,):  # proto3 presence: an old log's absent field is not 0
+                field.proto3_optional = True
+                field.oneof_index = len(m.oneof_decl)
+                m.oneof_decl.add(name=f"_{f[0]}")
     return fdp
 
 
@@ -153,21 +161,27 @@ POSE_PB_DTYPE: Final = np.dtype([
 POSE_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 9)), _POSE_TAGS, strict=True))
 assert POSE_PB_DTYPE.itemsize == _POSE_PB.size == 64
 
-_CMD_PB: Final = struct.Struct("<BIBQBdBdBBBdBdBB")
+_CMD_PB: Final = struct.Struct("<BIBQBdBdBBBdBdBdBdBB")
 _CMD_TAGS: Final = (_tag(1, _I), _tag(2, _Q), _tag(3, _D), _tag(4, _D), _tag(5, _V),
-                    _tag(6, _D), _tag(7, _D), _tag(8, _L))
+                    _tag(6, _D), _tag(7, _D), _tag(9, _D), _tag(10, _D), _tag(8, _L))
 _CMD_NAMES: Final = ("robot_id", "step", "vx", "vy", "safety_changed", "safety_change_mps",
-                     "decision_us", "brain_len")
+                     "decision_us", "brain_vx", "brain_vy", "brain_len")
 _CMD_FMT: Final = {"robot_id": "<u4", "step": "<u8", "safety_changed": "u1", "brain_len": "u1"}
-COMMAND_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 9)), _CMD_TAGS, strict=True))
+COMMAND_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 11)), _CMD_TAGS, strict=True))
+"""Tag byte of each field of :func:`command_pb_dtype` (``t1``..``t10``, in layout order)."""
+_V1 = (*range(7), 9)  # the fields of the layout written before brain_vx, brain_vy
+COMMAND_PB_TAGS_V1: Final = {f"t{k + 1}": _CMD_TAGS[j] for k, j in enumerate(_V1)}
+"""The same for the older layout (:func:`command_pb_dtype` with ``old=True``)."""
 MAX_FIXED_BRAIN_BYTES: Final = 127
 """Brain ids up to this many bytes keep a one-byte length: the fixed layout."""
 
 
-def command_pb_dtype(brain_len: int) -> np.dtype[np.void]:
-    """A :func:`encode_command_pb` payload whose brain id is ``brain_len`` bytes."""
+def command_pb_dtype(brain_len: int, old: bool = False) -> np.dtype[np.void]:
+    """A :func:`encode_command_pb` payload whose brain id is ``brain_len`` bytes; ``old``:
+    one of a log written before fields 9 and 10 (brain_vx, brain_vy)."""
+    names = [_CMD_NAMES[j] for j in _V1] if old else _CMD_NAMES
     fields: list[tuple[str, str]] = []
-    for k, n in enumerate(_CMD_NAMES):
+    for k, n in enumerate(names):
         fields += [(f"t{k + 1}", "u1"), (n, _CMD_FMT.get(n, "<f8"))]
     if brain_len:
         fields.append(("brain", f"S{brain_len}"))
@@ -189,11 +203,12 @@ def encode_command_pb(c: Command) -> bytes:
         m = message_class(ROBOT_COMMAND)(
             robot_id=c.robot_id, step=c.step, vx=c.vx, vy=c.vy,
             safety_changed=c.safety_changed, safety_change_mps=c.safety_change_mps,
-            decision_us=c.decision_us, brain_id=c.brain_id)
+            decision_us=c.decision_us, brain_id=c.brain_id, brain_vx=c.brain_vx,
+            brain_vy=c.brain_vy)
         return bytes(m.SerializeToString())
     return _CMD_PB.pack(t[0], c.robot_id, t[1], c.step, t[2], c.vx, t[3], c.vy, t[4],
                         int(c.safety_changed), t[5], c.safety_change_mps, t[6], c.decision_us,
-                        t[7], len(brain)) + brain
+                        t[7], c.brain_vx, t[8], c.brain_vy, t[9], len(brain)) + brain
 
 
 def status_pb(s: Status) -> bytes:
@@ -228,6 +243,13 @@ def parse(name: str, data: bytes) -> Any:
     return m
 
 
+def brain_velocity(m: Any) -> tuple[float, float]:
+    """A parsed ``patternrl.RobotCommand``'s brain velocity (m/s): its vx, vy where the
+    log predates fields 9 and 10."""
+    return (m.brain_vx if m.HasField("brain_vx") else m.vx,
+            m.brain_vy if m.HasField("brain_vy") else m.vy)
+
+
 def to_wire(name: str, data: bytes) -> bytes:
     """The Zenoh payload a recorded protobuf message stands for (play-back puts it back)."""
     m = parse(name, data)
@@ -235,7 +257,8 @@ def to_wire(name: str, data: bytes) -> bytes:
         return encode_pose(Pose(m.robot_id, m.step, m.time_s, m.x, m.y, m.vx, m.vy, m.n_live))
     if name == ROBOT_COMMAND:
         return encode_command(Command(m.robot_id, m.step, m.vx, m.vy, m.brain_id,
-                                      m.safety_changed, m.safety_change_mps, m.decision_us))
+                                      m.safety_changed, m.safety_change_mps, m.decision_us,
+                                      *brain_velocity(m)))
     if name == ROBOT_STATUS:
         return encode_status(Status(**{f: getattr(m, f) for f, *_ in _MESSAGES["RobotStatus"]}))
     if name == PATTERN:

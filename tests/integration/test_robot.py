@@ -33,6 +33,7 @@ from runtime.messages import (
     encode_pose,
 )
 from runtime.patterns import make_pattern
+from runtime.safety import clamp_speed
 from runtime.signing import generate_key
 from runtime.swap import swap_brain
 from runtime.world_config import DEFAULT_WORLD
@@ -151,6 +152,11 @@ def test_robots_form_pattern_survive_fuzz_and_stop_on_sigint(
         v = np.array([[cmds[i].vx, cmds[i].vy] for i in range(n)])
         assert np.linalg.norm(v, axis=1).max() <= W.v_max_mps + 1e-12
         assert all(c.brain_id == RULE_ASSIGN and c.step == step for c in cmds.values())
+        for c in cmds.values():  # the brain's own velocity: the command, unless filtered
+            assert np.isfinite([c.brain_vx, c.brain_vy]).all()
+            if not c.safety_changed:
+                assert clamp_speed(c.brain_vx, c.brain_vy, W.v_max_mps) == pytest.approx(
+                    (c.vx, c.vy), abs=1e-12)
         assert collision_pairs(pos, new) == []
         pos = new
     assert formation_error(pos, C) < W.formed_tol_m < err0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -120,3 +121,22 @@ def test_command_columns_keep_file_order_across_brain_id_lengths() -> None:
         ("b" * 64, 3), ("rule:assign", 2), ("", 1)]
     assert cmds.brain_counts(cmds.step >= 4) == {"rule:assign": 1, "b" * 64: 1}
     assert list(cmds.brain_counts(cmds.step >= 4)) == ["rule:assign", "b" * 64]
+
+
+def test_command_columns_read_wire_versions_1_and_2_together() -> None:
+    """An old log's version 1 commands beside version 2 ones, of the same brain id length
+    and of another: the brain velocity of a version 1 command is its own velocity."""
+    cmds = [Command(k, k, 0.1 * k, 0.2, b, False, 0.0, 1.0, -0.5 * k, 0.25)
+            for k, b in enumerate(["ab", "cd", "xyz", "ef"])]
+
+    def v1(c: Command) -> bytes:
+        brain = c.brain_id.encode()
+        return struct.pack("<BBIQddBddH", 2, 1, c.robot_id, c.step, c.vx, c.vy, 0,
+                           0.0, 1.0, len(brain)) + brain
+
+    raw = [encode_command(cmds[0]), v1(cmds[1]), v1(cmds[2]), encode_command(cmds[3]),
+           b"\x02\x03" + encode_command(cmds[3])[2:]]  # an unknown version: malformed
+    got, bad = decode_commands(raw, [0, 1, 2, 3, 3])
+    assert bad == 1 and got.step.tolist() == [0, 1, 2, 3] and got.brain == ["ab", "cd", "xyz", "ef"]
+    assert got.v.tolist() == [[0.1 * k, 0.2] for k in range(4)]
+    assert got.brain_v.tolist() == [[0.0, 0.25], [0.1, 0.2], [0.2, 0.2], [-1.5, 0.25]]

@@ -4,6 +4,7 @@ skipped, damage told from a cut, other writers' logs read without a traceback.""
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from patternrl.cli import main as cli
 from runtime import keys
-from runtime.messages import Command, Pose, encode_command, encode_pose
+from runtime.messages import Command, Pose, decode_command, encode_command, encode_pose
 from sim_bridge import log_schemas as pb
 from sim_bridge.log_columns import decode_commands_pb, decode_poses_pb
 from sim_bridge.log_layout import MAX_PAYLOAD_BYTES
@@ -25,7 +26,8 @@ POSES = [Pose(3, 12, 1.2, 0.5, 0.0, -1.0, 0.0, 4), Pose(0, 0, 0.0, 0.0, 0.0, 0.0
          Pose(2**32 - 1, 2**64 - 1, -1e300, 1e-300, 7.0, 0.25, -0.0, 2**32 - 1)]
 COMMANDS = [Command(3, 12, 0.0, 1.0, "abc", False, 0.0, 12.5),
             Command(0, 0, -0.3, 0.4, "", True, 0.2, 0.0),
-            Command(7, 2**64 - 1, 0.1, 0.0, "x" * 64, True, 1e9, 3.5)]
+            Command(7, 2**64 - 1, 0.1, 0.0, "x" * 64, True, 1e9, 3.5),
+            Command(2, 5, 0.5, 0.0, "rule:assign", True, 0.7, 9.0, 1.2, 0.0)]
 
 
 @pytest.mark.parametrize("pose", POSES)
@@ -44,7 +46,69 @@ def test_a_command_in_the_fixed_layout_parses_with_protobuf(cmd: Command) -> Non
             m.safety_change_mps, m.decision_us) == (
         cmd.robot_id, cmd.step, cmd.vx, cmd.vy, cmd.brain_id, cmd.safety_changed,
         cmd.safety_change_mps, cmd.decision_us)
+    assert m.HasField("brain_vx") and m.HasField("brain_vy")  # written even when zero
+    assert (m.brain_vx, m.brain_vy) == (cmd.brain_vx, cmd.brain_vy)
     assert pb.to_wire(pb.ROBOT_COMMAND, data) == encode_command(cmd)
+    c, bad = decode_commands_pb([data], [cmd.robot_id], [0])
+    assert bad == 0 and c.brain_v.tolist() == [[cmd.brain_vx, cmd.brain_vy]]
+
+
+def _old_command_pb(c: Command) -> bytes:
+    """``c`` in the fixed layout logs had before fields 9 and 10 (brain_vx, brain_vy)."""
+    brain = c.brain_id.encode()
+    return struct.pack("<BIBQBdBdBBBdBdBB", 0x0D, c.robot_id, 0x11, c.step, 0x19, c.vx, 0x21,
+                       c.vy, 0x28, int(c.safety_changed), 0x31, c.safety_change_mps, 0x39,
+                       c.decision_us, 0x42, len(brain)) + brain
+
+
+def test_old_command_layouts_still_read_with_the_brain_velocity_as_the_command() -> None:
+    """Logs written before the brain velocity: its fixed layout, and another writer's."""
+    old = [_old_command_pb(c) for c in COMMANDS]
+    other = bytes(pb.message_class(pb.ROBOT_COMMAND)(
+        robot_id=1, step=3, vx=0.25, vy=-0.5, brain_id="z").SerializeToString())
+    new = pb.encode_command_pb(COMMANDS[3])
+    raw = [old[0], new, other, old[1], old[2], old[3]]
+    rids = [3, 2, 1, 0, 7, 2]
+    c, bad = decode_commands_pb(raw, rids, list(range(6)))
+    assert bad == 0 and c.robot_id.tolist() == rids
+    assert c.brain == ["abc", "rule:assign", "z", "", "x" * 64, "rule:assign"]
+    assert c.v.tolist() == [[0.0, 1.0], [0.5, 0.0], [0.25, -0.5], [-0.3, 0.4], [0.1, 0.0],
+                            [0.5, 0.0]]
+    brain_v = c.v.copy()
+    brain_v[1] = [1.2, 0.0]
+    assert c.brain_v.tolist() == brain_v.tolist()
+    for cmd, data in zip(COMMANDS, old, strict=True):  # play-back puts back version 2
+        back = decode_command(pb.to_wire(pb.ROBOT_COMMAND, data))
+        assert (back.vx, back.vy, back.brain_vx, back.brain_vy) == (
+            cmd.vx, cmd.vy, cmd.vx, cmd.vy)
+
+
+def test_a_recorded_log_carries_the_brain_velocity(tmp_path: Path) -> None:
+    """Robots of either wire version, recorded, decoded by mcap's own protobuf decoder."""
+    log = tmp_path / "run.mcap"
+    sent = [Command(0, 0, 0.3, 0.0, "b", True, 0.9, 5.0, 1.2, 0.0),
+            Command(1, 0, 0.1, -0.2, "b", False, 0.0, 5.0)]
+    v1 = struct.pack("<BBIQddBddH", 2, 1, 2, 0, -0.4, 0.0, 0, 0.0, 5.0, 1) + b"b"
+    with Recorder(log) as rec:
+        for k in range(3):
+            rec.write_wire(keys.pose_key("s", k), encode_pose(Pose(k, 0, 0.0, k, 0, 0, 0, 3)))
+        for c in sent:
+            rec.write_wire(keys.cmd_key("s", c.robot_id), encode_command(c))
+        rec.write_wire(keys.cmd_key("s", 2), v1)
+    got = {}
+    factory = DecoderFactory()
+    with open(log, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if schema is not None and schema.name == pb.ROBOT_COMMAND:
+                decode = factory.decoder_for(channel.message_encoding, schema)
+                assert decode is not None
+                m = decode(message.data)
+                got[m.robot_id] = (m.vx, m.vy, m.brain_vx, m.brain_vy)
+    assert got == {0: (0.3, 0.0, 1.2, 0.0), 1: (0.1, -0.2, 0.1, -0.2),
+                   2: (-0.4, 0.0, -0.4, 0.0)}
+    cmds = read_log(log).commands
+    assert cmds.robot_id.tolist() == [0, 1, 2]
+    assert cmds.brain_v.tolist() == [[1.2, 0.0], [0.1, -0.2], [-0.4, 0.0]]
 
 
 def test_columns_read_the_fixed_layout_and_another_writers_alike() -> None:

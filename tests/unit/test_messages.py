@@ -40,6 +40,7 @@ SAMPLES: dict[str, Message] = {
     "command-empty-brain": Command(0, 0, 0.0, 0.0, "", False, 0.0, 0.0),
     "command-64-brain": Command(1, 2, 1.0, -1.0, BRAIN_ID, False, 0.0, 1e6),
     "command-unicode-brain": Command(1, 2, 1.0, -1.0, "cerveau-é-脑-🧠", False, 0.0, 3.0),
+    "command-brain-velocity": Command(5, 9, 0.2, 0.0, "rule:assign", True, 1.1, 40.0, 1.3, -0.4),
     "status": Status(
         robot_id=4,
         step=900,
@@ -115,7 +116,7 @@ def test_round_trip(name: str) -> None:
     payload = m.encode(msg)
     assert payload == encode_one(msg)
     assert payload[0] == Tag[type(msg).__name__.upper().removesuffix("MSG")]
-    assert payload[1] == m.VERSION
+    assert payload[1] == (m.COMMAND_VERSION if isinstance(msg, Command) else m.VERSION)
     back = m.decode(payload)
     assert type(back) is type(msg)
     assert back == msg
@@ -171,7 +172,7 @@ def test_pose_round_trip_any(rid: int, step: int, fl: list[float], n_live: int) 
 @given(
     st.integers(0, 2**32 - 1),
     st.integers(0, 2**64 - 1),
-    st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=4, max_size=4),
+    st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=6, max_size=6),
     st.text(max_size=64),
     st.booleans(),
 )
@@ -182,8 +183,45 @@ def test_command_round_trip_any(
         brain.encode("utf-8")
     except UnicodeEncodeError:
         return  # lone surrogates: refused at encode, tested elsewhere
-    cmd = Command(rid, step, fl[0], fl[1], brain, changed, fl[2], fl[3])
+    cmd = Command(rid, step, fl[0], fl[1], brain, changed, fl[2], fl[3], fl[4], fl[5])
     assert m.decode_command(m.encode_command(cmd)) == cmd
+
+
+def _command_v1(c: Command) -> bytes:
+    """``c`` as a format version 1 payload (written before the brain velocity)."""
+    brain = c.brain_id.encode()
+    return struct.pack("<BBIQddBddH", Tag.COMMAND, 1, c.robot_id, c.step, c.vx, c.vy,
+                       int(c.safety_changed), c.safety_change_mps, c.decision_us,
+                       len(brain)) + brain
+
+
+def test_command_carries_the_brain_velocity() -> None:
+    cmd = SAMPLES["command-brain-velocity"]
+    assert isinstance(cmd, Command)
+    raw = m.encode_command(cmd)
+    assert raw[:2] == bytes([Tag.COMMAND, 2]) and len(raw) == 65 + len(cmd.brain_id)
+    back = m.decode_command(raw)
+    assert (back.brain_vx, back.brain_vy) == (1.3, -0.4) and (back.vx, back.vy) == (0.2, 0.0)
+    # left out, the brain velocity is the command's own
+    plain = Command(1, 2, 0.5, -0.25, "b", False, 0.0, 1.0)
+    assert (plain.brain_vx, plain.brain_vy) == (0.5, -0.25)
+    assert m.decode_command(m.encode_command(plain)) == plain
+
+
+@pytest.mark.parametrize("name", [n for n in SAMPLES if n.startswith("command")])
+def test_version_1_commands_still_decode(name: str) -> None:
+    """A version 1 payload decodes, its brain velocity read as its vx, vy."""
+    cmd = SAMPLES[name]
+    assert isinstance(cmd, Command)
+    old = _command_v1(cmd)
+    assert len(old) == len(m.encode_command(cmd)) - 16
+    back = m.decode(old)
+    assert isinstance(back, Command)
+    assert back == Command(cmd.robot_id, cmd.step, cmd.vx, cmd.vy, cmd.brain_id,
+                           cmd.safety_changed, cmd.safety_change_mps, cmd.decision_us)
+    assert (back.brain_vx, back.brain_vy) == (cmd.vx, cmd.vy)
+    (r,) = np.frombuffer(old, m.command_dtype(len(old) - m.COMMAND_HEAD_DTYPE_V1.itemsize, 1))
+    assert r["version"] == 1 and r["vx"] == cmd.vx and "brain_vx" not in (r.dtype.names or ())
 
 
 def test_numpy_columns_read_what_the_encoders_write() -> None:
@@ -206,6 +244,7 @@ def test_numpy_columns_read_what_the_encoders_write() -> None:
             c.safety_changed, c.safety_change_mps, c.decision_us)
         brain = bytes(r["brain"]).decode() if "brain" in (dt.names or ()) else ""
         assert r["brain_len"] == len(c.brain_id.encode()) and brain == c.brain_id
+        assert (r["brain_vx"], r["brain_vy"]) == (c.brain_vx, c.brain_vy)
 
 
 # -- refusals at encode ---------------------------------------------------------------------
@@ -228,6 +267,8 @@ def test_numpy_columns_read_what_the_encoders_write() -> None:
         Command(1, 1, 0.0, 0.0, "\ud800", False, 0.0, 0.0),
         Command(1, 1, 0.0, 0.0, "", 1, 0.0, 0.0),  # type: ignore[arg-type]
         Command(-1, 1, 0.0, 0.0, "", False, 0.0, 0.0),
+        Command(1, 1, 0.0, 0.0, "", False, 0.0, 0.0, math.inf, 0.0),
+        Command(1, 1, 0.0, 0.0, "", False, 0.0, 0.0, 0.0, -math.inf),
         Status(1, 1, "", math.nan, 0.0, 0.0, 0, 0, 0, "", 0.0),
         Status(1, 1, "", 0.0, 0.0, 0.0, -1, 0, 0, "", 0.0),
         Status(1, 1, "", 0.0, 0.0, 0.0, 0, True, 0, "", 0.0),
@@ -296,6 +337,11 @@ BAD_PAYLOADS: dict[str, bytes] = {
     "command bool 2": struct.pack("<BBIQddBddH", 2, 1, 0, 0, 0.0, 0.0, 2, 0.0, 0.0, 0),
     "command brain too long": struct.pack("<BBIQddBddH", 2, 1, 0, 0, 0.0, 0.0, 0, 0.0, 0.0, 65535)
     + b"a" * 65535,
+    "command version 3": bytes([Tag.COMMAND, 3]) + _GOOD_CMD[2:],
+    "command brain_vx nan": struct.pack("<BBIQddBddddH", 2, 2, 0, 0, 0.0, 0.0, 0, 0.0, 0.0,
+                                        math.nan, 0.0, 0),
+    "command v2 as v1": bytes([Tag.COMMAND, 1]) + _GOOD_CMD[2:],
+    "command v1 as v2": struct.pack("<BBIQddBddH", 2, 2, 0, 0, 0.0, 0.0, 0, 0.0, 0.0, 0),
     "command 65 chars": struct.pack("<BBIQddBddH", 2, 1, 0, 0, 0.0, 0.0, 0, 0.0, 0.0, 65)
     + b"a" * 65,
     "command bad utf-8": struct.pack("<BBIQddBddH", 2, 1, 0, 0, 0.0, 0.0, 0, 0.0, 0.0, 2)
@@ -394,6 +440,11 @@ def test_error_messages_say_what_is_wrong() -> None:
         m.decode_pose(_GOOD_CMD)
     with pytest.raises(MessageError, match="version 2"):
         m.decode(BAD_PAYLOADS["version 2"])
+    with pytest.raises(MessageError, match=r"unsupported command version 3 \(this build reads "
+                                           r"1 or 2\)"):
+        m.decode(BAD_PAYLOADS["command version 3"])
+    with pytest.raises(MessageError, match=r"command\.brain_vx must be finite"):
+        m.decode(BAD_PAYLOADS["command brain_vx nan"])
     with pytest.raises(MessageError, match="pose must be 58 bytes, got 57"):
         m.decode(BAD_PAYLOADS["pose truncated"])
     with pytest.raises(MessageError, match=r"pose\.x must be finite"):
