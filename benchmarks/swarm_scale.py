@@ -46,22 +46,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from sim_scale import _cpu_seconds  # noqa: E402 -- one /proc reader for both benchmarks
+
 from runtime.brain import Brain, load_brain  # noqa: E402 -- after the path set-up above
 from runtime.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 
 W = DEFAULT_WORLD
 BRAIN = ROOT / "exports" / "general.onnx"
-
-
-def _cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process so far (0 if gone)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return 0.0
 
 
 def _mem_mb(pid: int) -> tuple[float, float]:
@@ -99,7 +91,7 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0) -> d
     def on_progress(p: Any) -> None:
         if p.step == 1:
             at["t1"] = time.monotonic()
-            at["cpu1"] = {r: _cpu_s(q.pid) for r, q in robots.procs.items()}
+            at["cpu1"] = {r: _cpu_seconds(q.pid) for r, q in robots.procs.items()}
         if p.step == min(20, max_steps // 2):
             mem = [_mem_mb(q.pid) for q in robots.procs.values()]
             at["pss"] = [m[0] for m in mem]
@@ -113,7 +105,7 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0) -> d
     try:
         robots.start(n, swarm, port, brain, args, log)
         res = world.run()
-        cpu_end = {r: _cpu_s(q.pid) for r, q in robots.procs.items()}
+        cpu_end = {r: _cpu_seconds(q.pid) for r, q in robots.procs.items()}
     finally:
         robots.stop()
         session.close()  # type: ignore[no-untyped-call]

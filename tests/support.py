@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import socket
+import subprocess
 import time
 from collections.abc import Callable
 from typing import Any
@@ -25,3 +27,16 @@ def wait_for(cond: Callable[[], Any], timeout: float, what: str, poll: float = 0
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(poll)
+
+
+def stop_processes(procs: list[subprocess.Popen[Any]], timeout: float = 5.0) -> None:
+    """SIGTERM every process still running, then wait for each (SIGKILL after ``timeout`` s)."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for p in procs:
+        try:
+            p.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=timeout)

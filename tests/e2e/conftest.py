@@ -7,7 +7,6 @@ every wait is on a condition with a timeout (no fixed sleeps).
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -42,6 +41,7 @@ OPEN_COMMANDS = ("sim", "robot", "swap")
 
 # re-exported: tests import these from conftest
 from support import free_port as free_port  # noqa: E402
+from support import stop_processes  # noqa: E402
 from support import wait_for as wait_for  # noqa: E402
 
 
@@ -96,15 +96,7 @@ class Procs:
         return (self.tmp / f"{name}.log").read_text(errors="replace")
 
     def stop_all(self) -> None:
-        for p in self.procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in self.procs:
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_processes(self.procs)
 
 
 @pytest.fixture
