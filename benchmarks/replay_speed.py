@@ -1,4 +1,4 @@
-"""Messages per second that ``patternrl replay`` reads and analyses (issue 6 goal: >= 100 k/s).
+"""Messages per second that ``patternrl replay`` reads and analyses (goal: >= 100 k messages/s).
 
 The log: 10,000 steps of 20 robots (``--steps``, ``--robots``), written through the
 real recorder API (:class:`sim_bridge.recorder.Recorder`) with synthetic motion, so

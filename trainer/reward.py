@@ -36,8 +36,8 @@ Reward constants (``RewardConfig()``; per robot, per step)
                              steps (about 30-40 from uniform starts here): a
                              dense team signal on the paper's own term.
     progress_weight  1.0     per-robot progress toward its own slot: the
-                             training-only credit signal that, in the experiment
-                             quoted in issue 2, made the difference between a
+                             training-only credit signal that, in a calibration
+                             run (DESIGN.md), made the difference between a
                              circle formed within 2 minutes of training and one
                              not formed after 12. 0 gives the paper's reward.
     formed_bonus     1.0     once, to every robot, on the formed step: marks
