@@ -108,7 +108,7 @@ def plot(path: Path, frontier: list[tuple[float, float, float]],
     ax.set_ylabel("travel / lower bound (mean over cases)")
     ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="best", framealpha=0.9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
