@@ -34,6 +34,7 @@ import platform
 import sys
 import time
 import warnings
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -136,26 +137,36 @@ def summarise(rows: list[dict[str, Any]], target: float) -> list[dict[str, Any]]
     return out
 
 
+def _fig5_run(algo: str, seed: int, args: argparse.Namespace) -> tuple[list[dict[str, Any]], str]:
+    """One Fig. 5 run (a process of its own with ``--jobs``): its curve and a log line."""
+    cfg = TrainConfig(algo=algo, obs=args.fig5_obs, n_robots=args.robots, seed=seed,
+                      front_end=args.fig5_front_end)
+    plan = RunPlan(
+        patterns=args.fig5_patterns,
+        out=Path(args.out_dir) / "unused.onnx",
+        episodes=args.fig5_episodes,
+        progress=False,
+        write_files=False,
+    )
+    t0 = time.perf_counter()
+    res = train(cfg, plan)
+    line = (f"fig5 {algo:<11} seed {seed}: {res.episodes} episodes in "
+            f"{time.perf_counter() - t0:.0f} s")
+    return res.curve, line
+
+
 def fig5(args: argparse.Namespace) -> dict[str, Any]:
     curves: dict[str, list[list[dict[str, Any]]]] = {a: [] for a in args.algos}
-    for algo in args.algos:
-        for seed in range(args.fig5_seeds):
-            cfg = TrainConfig(algo=algo, obs=args.fig5_obs, n_robots=args.robots, seed=seed)
-            plan = RunPlan(
-                patterns=args.fig5_patterns,
-                out=Path(args.out_dir) / "unused.onnx",
-                episodes=args.fig5_episodes,
-                progress=False,
-                write_files=False,
-            )
-            t0 = time.perf_counter()
-            res = train(cfg, plan)
-            curves[algo].append(res.curve)
-            print(
-                f"fig5 {algo:<11} seed {seed}: {res.episodes} episodes in "
-                f"{time.perf_counter() - t0:.0f} s",
-                flush=True,
-            )
+    tasks = [(algo, seed) for algo in args.algos for seed in range(args.fig5_seeds)]
+    if args.jobs > 1:  # independent runs side by side, one process each
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            results = list(pool.map(_fig5_run, *zip(*tasks, strict=True),
+                                    [args] * len(tasks)))
+    else:
+        results = [_fig5_run(algo, seed, args) for algo, seed in tasks]
+    for (algo, _), (curve, line) in zip(tasks, results, strict=True):
+        curves[algo].append(curve)
+        print(line, flush=True)
     png = Path(args.out_dir) / "fig5.png"
     summary = plot_fig5(curves, args.fig5_patterns, args.fig5_episodes, png, args.fig5_obs)
     return {"png": str(png), "final_reward": summary}
@@ -226,6 +237,11 @@ def main() -> int:
     p.add_argument("--fig5-episodes", type=int, default=300, help="per pattern stage (300)")
     p.add_argument("--fig5-seeds", type=int, default=4)
     p.add_argument("--fig5-obs", default="general")
+    p.add_argument("--fig5-front-end", default="auto", choices=["auto", "none", "rank", "slots"],
+                   help="the brain's front end for the Fig. 5 runs (trainer.front_end)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="Fig. 5 runs side by side, one process each (for machines with more "
+                        "cores; each run uses one)")
     p.add_argument("--out-dir", default=str(ROOT / "benchmarks" / "results"))
     args = p.parse_args()
     args.seeds = [int(s) for s in args.seeds.split(",") if s]

@@ -41,7 +41,7 @@ from trainer.config import (
     reward_for,
 )
 from trainer.curve import TensorBoardCurve
-from trainer.evaluate import DEFAULT_EVAL_SEED, evaluate_brain
+from trainer.evaluate import manifest_evaluation
 from trainer.export import write_brain
 from trainer.reward import PAPER_REWARD
 from trainer.rollout import RolloutMode, env_shares
@@ -107,7 +107,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--final-eval-episodes",
         type=int,
         default=100,
-        help="episodes of the exported brain's evaluation (ORCA on) for its manifest; 0 skips",
+        help="episodes of the exported brain's evaluation for its manifest, with the safety "
+        "filter (ORCA) and raw (filter off); 0 skips",
     )
     tune.add_argument("--threads", type=int, help=f"torch threads (default {d.threads})")
     tune.add_argument("--no-progress", action="store_true", help="no bar, no log lines")
@@ -312,16 +313,14 @@ def run(args: argparse.Namespace) -> int:
     write_brain(result.agent, args.out, manifest, args.sign_key)
     if args.final_eval_episodes > 0:
         brain = load_brain(str(args.out))
-        ev = evaluate_brain(
+        manifest.evaluation = manifest_evaluation(
             brain,
             patterns[-1],
             cfg.n_robots,
             args.final_eval_episodes,
-            seed=DEFAULT_EVAL_SEED,
             progress=False if args.no_progress else None,
             label=args.out.stem,
         )
-        manifest.evaluation = ev.manifest_block()
         write_brain(result.agent, args.out, manifest, args.sign_key)
 
     files = {k: str(v) for k, v in artefact_paths(args.out).items()}
@@ -350,6 +349,8 @@ def run(args: argparse.Namespace) -> int:
                 f"; evaluation ({m['episodes']} episodes, ORCA): success "
                 f"{100 * m['success_rate']:.1f} %, {m['collisions']} collisions"
                 + (f", steps {m['steps_ratio']:.3f}x the lower bound" if m["steps_ratio"] else "")
+                + f"; raw (filter off): success {100 * m['raw']['success_rate']:.1f} %, "
+                f"{m['raw']['collisions']} collisions"
             )
         print(
             f"{args.out} ({summary['size_bytes'] // 1024} KB): {cfg.algo}, {spec.name} "

@@ -42,6 +42,7 @@ from trainer.reward import RewardConfig
 
 Algo = Literal["pattern-rl", "ppo"]
 ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")
+FRONT_END_NAMES: tuple[str, ...] = ("auto", "none", "rank", "slots")
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,12 @@ class TrainConfig:
     residual: bool = False
     """``general`` only: the action is ``rule:assign``'s velocity plus the policy's
     (:class:`trainer.networks.Agent`), so a brain starts at the rule."""
+    front_end: str = "auto"
+    """``rank``: the paper brain's fixed front end (trainer.front_end: centroid, rank along
+    the team axis, nearest others) before the normaliser, and the per-robot progress reward
+    toward the rank matching's slot (trainer.rank); ``slots``: the same, and the brain
+    carries its pattern's points in rank order and sees its slot vector; ``none``: the
+    observation as it is; ``auto``: ``rank`` for the paper observation, else ``none``."""
     n_robots: int = 10
     seed: int = 0
 
@@ -136,9 +143,22 @@ class TrainConfig:
             raise ValueError(f"unknown algorithm '{self.algo}' (known: {', '.join(ALGOS)})")
         if self.returns not in ("mc", "gae"):
             raise ValueError(f"unknown returns '{self.returns}' (known: mc, gae)")
+        if self.front_end not in FRONT_END_NAMES:
+            raise ValueError(f"unknown front end '{self.front_end}' "
+                             f"(known: {', '.join(FRONT_END_NAMES)})")
+        if self.front_end in ("rank", "slots") and self.obs != "paper":
+            raise ValueError(f"the {self.front_end} front end reads the paper observation "
+                             "(--obs paper)")
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")
+
+    @property
+    def front(self) -> str:
+        """The front end in effect: ``rank`` or ``none`` (``auto`` resolved)."""
+        if self.front_end == "auto":
+            return "rank" if self.obs == "paper" else "none"
+        return self.front_end
 
     @property
     def uses_autoencoder(self) -> bool:
@@ -245,7 +265,9 @@ def _check_range(key: str, value: Any, source: str) -> None:
         problem = "must be >= 1"
     elif key == "obs" and value not in OBS_NAMES:
         problem = f"unknown observation '{value}' (known: {', '.join(OBS_NAMES)})"
-    if problem is None:
+    elif key == "front_end" and value not in FRONT_END_NAMES:
+        problem = f"unknown front end '{value}' (known: {', '.join(FRONT_END_NAMES)})"
+    if problem is None and key != "front_end":  # front_end's fit to obs: checked as a whole
         try:  # the dataclass's own checks, one key at a time so the error names it
             TrainConfig().with_(**{key: value})
         except ValueError as e:

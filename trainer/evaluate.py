@@ -219,6 +219,19 @@ def evaluate_brain(
     )
 
 
+def manifest_evaluation(brain: Brain, pattern: str, n_robots: int, episodes: int,
+                        progress: bool | None = None, label: str = "") -> dict[str, Any]:
+    """A brain manifest's ``evaluation`` block: ``episodes`` held-out episodes with the
+    safety filter at its defaults (as shipped), and under ``raw`` the same episodes with
+    the filter off (the brain alone, as the paper runs it)."""
+    block = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
+                           progress=progress, label=label).manifest_block()
+    raw = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
+                         safety=None, progress=progress, label=f"{label} raw")
+    block["raw"] = raw.manifest_block()
+    return block
+
+
 def _bar(enabled: bool | None, total: int, desc: str) -> Any:
     if not (sys.stderr.isatty() if enabled is None else enabled):
         return None

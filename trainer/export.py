@@ -2,7 +2,8 @@
 
 The graph holds everything from the raw observation to the action::
 
-    obs [batch, D] -> Sub(shift) -> Mul(scale) -> Clip(+-5)          normaliser
+    obs [batch, D] -> Reshape, Gather, ReduceSum, MatMul, Less ...    front end (paper brains)
+                   -> Sub(shift) -> Mul(scale) -> Clip(+-5)          normaliser
                    -> Gemm -> Relu -> Gemm                          encoder (Pattern-RL only)
                    -> Gemm -> Relu -> Gemm -> Relu -> Gemm -> Relu  policy trunk 256-128-128
                    -> Gemm -> Tanh -> Mul(v_max)                    "action" [batch, 2], m/s
@@ -46,6 +47,7 @@ from runtime.brain import (
 from runtime.errors import InputError
 from runtime.signing import load_private_key, sign_manifest, user_key
 from trainer.config import TrainConfig
+from trainer.front_end import onnx_nodes
 from trainer.networks import NORM_CLIP, Agent
 
 OPSET = 17
@@ -94,12 +96,16 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
                 x = unary("Relu", x, f"{name}.relu")
         return x
 
+    x = "obs"
+    if agent.front is not None:  # the paper brain's fixed front end, before the normaliser
+        front_nodes, x = onnx_nodes(agent.front, x, const, const_i64)
+        nodes += front_nodes
     norm = agent.normaliser
     shift = const("normaliser.shift", norm.shift.numpy())
     scale = const("normaliser.scale", norm.scale.numpy())
     lo, hi = const("normaliser.clip_lo", -NORM_CLIP), const("normaliser.clip_hi", NORM_CLIP)
     nodes += [
-        helper.make_node("Sub", ["obs", shift], ["norm.centred"], name="norm.sub"),
+        helper.make_node("Sub", [x, shift], ["norm.centred"], name="norm.sub"),
         helper.make_node("Mul", ["norm.centred", scale], ["norm.scaled"], name="norm.mul"),
         helper.make_node("Clip", ["norm.scaled", lo, hi], ["norm.out"], name="norm.clip"),
     ]
@@ -211,12 +217,18 @@ def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Age
     if "normaliser.shift" not in w or "policy.mean_head.weight" not in w:
         raise BrainFileError(f"{path} is not a Pattern-RL brain (unknown layout)")
     has_ae = "encoder.0.weight" in w
-    cfg = cfg.with_(residual="rule.dt" in w)
+    if "front.axis" in w and cfg.obs != "paper":
+        raise BrainFileError(f"{path} reads the paper observation; train it with --obs paper")
+    front = ("slots" if "front.slots" in w else "rank") if "front.axis" in w else "none"
+    cfg = cfg.with_(residual="rule.dt" in w, front_end=front)
     dt_s = float(w["rule.dt"]) if "rule.dt" in w else 0.1
+    if "front.inv_dt" in w:
+        dt_s = 1.0 / float(w["front.inv_dt"])
     if has_ae != cfg.uses_autoencoder:
         kind = "pattern-rl" if has_ae else "ppo"
         raise BrainFileError(f"{path} is a {kind} brain; train it with --algo {kind}")
-    obs_dim = int(w["normaliser.shift"].numel())
+    dims = model.graph.input[0].type.tensor_type.shape.dim
+    obs_dim = int(dims[1].dim_value) if len(dims) == 2 else int(w["normaliser.shift"].numel())
     if has_ae:
         cfg = cfg.with_(
             latent_dim=int(w["encoder.2.weight"].shape[0]),

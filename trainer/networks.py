@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from torch import nn
 
 from trainer.config import TrainConfig
+from trainer.front_end import RankFrontEnd
 
 NORM_CLIP = 5.0
 STD_FLOOR = 1e-3
@@ -150,10 +151,17 @@ class Agent(nn.Module):
         self, obs_dim: int, cfg: TrainConfig, v_max_mps: float, dt_s: float = 0.1
     ) -> None:
         super().__init__()
-        self.obs_dim = obs_dim
+        self.obs_dim = obs_dim  # the raw observation's length (the brain's input)
         self.v_max_mps = float(v_max_mps)
         self.residual = bool(getattr(cfg, "residual", False))
         self.dt_s = float(dt_s)
+        self.front: RankFrontEnd | None = None
+        if cfg.front in ("rank", "slots"):
+            slots = cfg.front == "slots"
+            self.front = RankFrontEnd(cfg.n_robots, dt_s, v_max_mps * dt_s, with_slots=slots)
+            if obs_dim != 6 * (cfg.n_robots - 1):
+                raise ValueError(f"the rank front end reads the paper observation, not {obs_dim}")
+            obs_dim = self.front.out_dim
         self.normaliser = ObsNormaliser(obs_dim)
         self.encoder: nn.Module
         self.decoder: nn.Module | None
@@ -181,9 +189,24 @@ class Agent(nn.Module):
         out: torch.Tensor = v * (self.v_max_mps / torch.clamp_min(sp, self.v_max_mps))
         return out
 
+    def front_features(self, obs: torch.Tensor) -> torch.Tensor:
+        """The fixed front end's output (trainer.front_end); the observation itself without."""
+        return obs if self.front is None else self.front(obs)
+
+    def normalised(self, obs: torch.Tensor) -> torch.Tensor:
+        """The normaliser's output for raw observations (B, obs_dim)."""
+        out: torch.Tensor = self.normaliser(self.front_features(obs))
+        return out
+
+    def update_normaliser(self, obs: torch.Tensor) -> None:
+        """Fold raw observations (..., obs_dim) into the normaliser's statistics."""
+        with torch.no_grad():
+            raw = torch.as_tensor(obs).reshape(-1, self.obs_dim)
+            self.normaliser.update(self.front_features(raw))
+
     def features(self, obs: torch.Tensor) -> torch.Tensor:
         """e = I_mu(normalise(o)); the normalised observation itself without auto-encoder."""
-        out: torch.Tensor = self.encoder(self.normaliser(obs))
+        out: torch.Tensor = self.encoder(self.normalised(obs))
         return out
 
     def act_mps(self, obs: torch.Tensor) -> torch.Tensor:

@@ -85,6 +85,7 @@ def step_reward(
     dist_before: Array,
     formed: BoolArray,
     reach: float,
+    dist_after: Array | None = None,
 ) -> Array:
     """One step's reward per robot, (N, E), robot-major as the training world keeps it.
 
@@ -92,13 +93,19 @@ def step_reward(
     ``error`` (E,) formation error before and after the step (m); ``X``
     (2, N, E) positions after it; ``goals_before`` (2, N, E) the slots shown in
     the last observation and ``dist_before`` (N, E) the distances to them (m);
-    ``formed`` (E,); ``reach`` = v_max dt (m).
+    ``formed`` (E,); ``reach`` = v_max dt (m). ``dist_after`` (N, E): each robot's
+    distance to its goal *after* the step, for goals that move with the team (the rank
+    matching's): the progress is then a difference of one per-robot potential, which
+    telescopes over an episode, so goals that swap cannot be farmed; None: the distance
+    to ``goals_before``.
     """
     reward = cfg.collision_penalty * hits + cfg.step_penalty
     reward += (cfg.beta / reach) * (error_before - error)
     if cfg.progress_weight:
-        after = X - goals_before
-        after_len = np.sqrt(after[0] * after[0] + after[1] * after[1])
+        after_len = dist_after
+        if after_len is None:
+            after = X - goals_before
+            after_len = np.sqrt(after[0] * after[0] + after[1] * after[1])
         reward += (cfg.progress_weight / reach) * (dist_before - after_len)
     if cfg.formed_bonus and formed.any():
         reward[:, formed] += cfg.formed_bonus

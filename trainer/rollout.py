@@ -86,7 +86,8 @@ def stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, sta
     a, b = share if share is not None else (0, cfg.n_envs)
     world_seed = cfg.seed + RESUME_SEED_STRIDE * it  # it = 0 unless resumed
     bw = BatchWorld(b - a, cfg.n_robots, pattern, obs_spec_for(cfg), world=world,
-                    reward=reward_for(cfg), seed=world_seed, first_env=a)
+                    reward=reward_for(cfg), seed=world_seed, first_env=a,
+                    rank_goals=cfg.front != "none")
     obs = bw.observe()
     if cfg.desync:
         # every world starts at once; cut each first episode at a random step (a

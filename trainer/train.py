@@ -50,7 +50,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from runtime.patterns import pattern_label
+from runtime.errors import InputError
+from runtime.patterns import make_pattern, pattern_label
 from runtime.types import F32Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.checkpoints import (
@@ -325,6 +326,8 @@ def train(
     set_determinism(cfg)
     for p in plan.patterns:  # a bad pattern fails now, with its one-line message
         check_pattern(p, cfg.n_robots, plan.world)
+        if cfg.front == "slots" and p == "random":
+            raise InputError("a brain with the slots front end is for one pattern, not 'random'")
     st = start_state(cfg, obs_spec_for(cfg), plan.world.v_max_mps, ck, plan.init)
     total_eps = plan.episodes * (len(plan.patterns) - st.stage0) if plan.episodes else None
     run = _Run(cfg, plan, artefact_paths(plan.out), time.perf_counter() - st.wall0_s,
@@ -349,6 +352,9 @@ def _train_stage(run: _Run, st: TrainState, stage: int) -> str:
     """Train one pattern until one of the plan's stops; which one."""
     cfg, plan = run.cfg, run.plan
     pattern = plan.patterns[stage]
+    front = st.agent.front
+    if front is not None and front.with_slots:  # the brain carries the stage's pattern
+        front.set_pattern(make_pattern(pattern, cfg.n_robots, plan.world))
     source = rollout_source(cfg, plan, pattern, st.iteration, stage)
     try:
         return _stage_loop(run, st, stage, pattern, source)
@@ -383,7 +389,7 @@ def _learn(st: TrainState, batch: RolloutBatch, cfg: TrainConfig, lr_scale: floa
     if st.fit_decoder:
         fit_decoder(st.agent, st.opt, batch.obs)
         st.fit_decoder = False
-    st.agent.normaliser.update(batch.obs)
+    st.agent.update_normaliser(batch.obs)
     base_lrs = [cfg.lr_ae, cfg.lr_policy, cfg.lr_value]  # in Optimisers order
     for o_, lr in zip(st.opt, base_lrs, strict=True):
         for g in o_.param_groups if o_ is not None else []:

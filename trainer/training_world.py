@@ -28,7 +28,8 @@ Step (``BatchWorld.step``), in order
        ``formation_error_batch`` give for that assignment; tested equal).
     5. **Reward**, per robot: paper eq. 6 plus a per-robot progress term and
        a bonus on the formed step (:func:`trainer.reward.step_reward`, which
-       documents every term and constant).
+       documents every term and constant); with ``rank_goals`` the progress is
+       toward the rank matching's goals (:func:`trainer.rank.rank_goals`).
     6. **Termination.** *Formed*: every robot within ``formed_tol`` of its slot
        under the shared assignment (``slot_distances``; the assignment is the
        error-optimal one, up to the hysteresis margin). *Truncated*: the step
@@ -69,12 +70,8 @@ from runtime.patterns import make_pattern, random_pattern
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.contacts import move
-from trainer.reward import (
-    DEFAULT_REWARD,
-    PAPER_REWARD,
-    RewardConfig,
-    step_reward,
-)
+from trainer.rank import rank_goals
+from trainer.reward import DEFAULT_REWARD, PAPER_REWARD, RewardConfig, step_reward
 
 try:  # the compiled step (numba, in the ``train`` extra); the numpy path is the reference
     from trainer import kernels as _kernels
@@ -162,6 +159,7 @@ class BatchWorld:
         build_obs: bool = True,
         first_env: int = 0,
         compiled: bool = True,
+        rank_goals: bool = False,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -191,7 +189,7 @@ class BatchWorld:
         self.step_limit = int(step_limit if step_limit is not None else world.step_limit)
         if self.step_limit < 1:
             raise ValueError(f"step_limit must be >= 1, got {self.step_limit}")
-        self.build_obs = build_obs
+        self.build_obs, self.rank_goals = build_obs, rank_goals
         # compiled kernels (trainer.kernels) where numba is installed: the same numbers
         self.compiled = bool(compiled and _kernels is not None)
         self.obs_dim: int = obs_spec.dim if build_obs else 0
@@ -563,8 +561,10 @@ class BatchWorld:
         error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
         formed = dist2.max(axis=0) <= self._formed_tol2
         cfg, reach = self.reward_config, self._reach  # 5. reward, (N, E)
-        reward = step_reward(cfg, hits, self.error, error, X1, self._G, self._dist, formed, reach)
-
+        G0, d0, d1 = self._G, self._dist, None  # progress: toward the rank goals, if asked
+        if self.rank_goals:
+            (G0, d0), d1 = rank_goals(self._X, self._C), rank_goals(X1, self._C)[1]
+        reward = step_reward(cfg, hits, self.error, error, X1, G0, d0, formed, reach, d1)
         self._advance(P1, X1, G, dist2, hits, slots, error, reward)
         truncated, done = self._done(formed)  # 6. termination
 

@@ -1,0 +1,147 @@
+"""The paper brain's fixed front end: the paper's observation in a form a policy can learn from.
+
+A paper brain reads the paper's observation and nothing else (the other
+robots' relative positions at t, t-1, t-2, nearest first). Its first layer has
+no weights: it re-expresses that input so that what a robot must decide
+depends smoothly on it, then the auto-encoder, policy and value of Algorithm 1
+learn from there. Per robot, from frames t and t-1 (``n`` robots, ``k`` =
+min(6, n-1) nearest others)::
+
+    0:2        z: the robot's position relative to the team's centroid (m),
+               -sum_j rel_j(t) / n (the robot itself is at 0 in its own view)
+    2:4        dz / dt: how it moved relative to the team's centroid (m/s)
+    4:4+n      its rank along the team axis, one-hot (trainer.rank): which of
+               the n robots it is, in an order all robots agree on
+    4+n:       the k nearest others, nearest first: [dx, dy, dvx, dvy] relative
+               position (m) and relative velocity (m/s), for avoiding them
+
+With ``rank`` nothing in it names a slot or the pattern: the brain learns,
+from the reward, where the k-th robot of the team belongs (a table the one-hot
+rank reads out) and how to get there without touching the others. With
+``slots`` the brain carries its pattern's points in rank order (constants set
+from the training pattern, :meth:`RankFrontEnd.set_pattern`) and puts in
+front, as the general observation does::
+
+    0:2        slot vector: the slot of the robot's rank minus z (m)
+    2:4        the slot vector / max(|slot vector|, v_max dt)
+
+so the learned part is how to get there: the way, the speed, the others. The same few nodes open the
+exported ONNX graph (:func:`onnx_nodes`), so the robot, ``eval`` and the world
+run the brain on the plain paper observation, unchanged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from onnx import NodeProto, TensorProto, helper
+from torch import nn
+
+from trainer.rank import TEAM_AXIS
+
+NEAREST = 6
+FRONT_ENDS = ("none", "rank", "slots")
+
+
+def front_dim(n_robots: int, slots: bool = False) -> int:
+    """Length of the front end's output for a team of ``n_robots``."""
+    return 4 * slots + 4 + n_robots + 4 * min(NEAREST, n_robots - 1)
+
+
+class RankFrontEnd(nn.Module):
+    """Paper observation (B, 3 * (n-1) * 2) -> features (B, :func:`front_dim`)."""
+
+    axis: torch.Tensor
+    ranks: torch.Tensor
+    slots: torch.Tensor
+
+    def __init__(self, n_robots: int, dt_s: float, reach_m: float, with_slots: bool = False,
+                 axis: np.ndarray = TEAM_AXIS) -> None:
+        super().__init__()
+        self.n = int(n_robots)
+        self.k = min(NEAREST, self.n - 1)
+        self.dt_s, self.reach_m = float(dt_s), float(reach_m)
+        self.with_slots = bool(with_slots)
+        self.register_buffer("axis", torch.tensor(np.asarray(axis), dtype=torch.float32))
+        self.register_buffer("ranks", torch.arange(self.n, dtype=torch.float32))
+        self.register_buffer("slots", torch.zeros(self.n, 2))
+        self.out_dim = front_dim(self.n, self.with_slots)
+
+    def set_pattern(self, pattern: np.ndarray) -> None:
+        """``slots`` variant: the pattern's (n, 2) points, centred and listed in rank order."""
+        C = np.asarray(pattern, dtype=np.float64)
+        C = C - C.mean(axis=0)
+        self.slots.copy_(torch.from_numpy(C[np.argsort(C @ self.axis.double().numpy(),
+                                                       kind="stable")]))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        o = obs.reshape(-1, 3, self.n - 1, 2)
+        now, before = o[:, 0], o[:, 1]
+        c_now, c_before = now.sum(1), before.sum(1)
+        z = c_now * (-1.0 / self.n)
+        vz = (c_before - c_now) * (1.0 / (self.n * self.dt_s))
+        rank = (torch.matmul(now, self.axis) < 0).to(obs.dtype).sum(1, keepdim=True)
+        one_hot = (rank == self.ranks).to(obs.dtype)
+        near = now[:, : self.k]
+        moved = (near - before[:, : self.k]) * (1.0 / self.dt_s)
+        nb = torch.cat([near, moved], dim=2).reshape(-1, 4 * self.k)
+        out = torch.cat([z, vz, one_hot, nb], dim=1)
+        if not self.with_slots:
+            return out
+        sv = one_hot @ self.slots - z  # slot vector: own slot minus own position (m)
+        step = sv / sv.norm(dim=1, keepdim=True).clamp_min(self.reach_m)
+        return torch.cat([sv, step, out], dim=1)
+
+
+def onnx_nodes(front: RankFrontEnd, x: str,
+               const: Callable[[str, np.ndarray | float], str],
+               const_i64: Callable[[str, list[int]], str]) -> tuple[list[NodeProto], str]:
+    """The ONNX nodes computing ``front`` from the input ``x``; returns them and their output.
+
+    ``const``/``const_i64`` add float32/int64 initializers (the exporter's). The
+    initializer ``front.axis`` marks a brain with this front end when it is read back.
+    """
+    n, k = front.n, front.k
+    axis = const("front.axis", front.axis.numpy())
+    ranks = const("front.ranks", front.ranks.numpy())
+    zero = const("front.zero", 0.0)
+
+    def node(op: str, inputs: list[str], out: str, **attrs: object) -> str:
+        nodes.append(helper.make_node(op, inputs, [out], name=out, **attrs))
+        return out
+
+    nodes: list[NodeProto] = []
+    o = node("Reshape", [x, const_i64("front.shape", [-1, 3, n - 1, 2])], "front.frames")
+    now = node("Gather", [o, const_i64("front.t0", [0])], "front.now4", axis=1)
+    now = node("Squeeze", [now, const_i64("front.sq", [1])], "front.now")
+    before = node("Gather", [o, const_i64("front.t1", [1])], "front.before4", axis=1)
+    before = node("Squeeze", [before, "front.sq"], "front.before")
+    c_now = node("ReduceSum", [now, const_i64("front.others", [1])], "front.c_now", keepdims=0)
+    c_before = node("ReduceSum", [before, "front.others"], "front.c_before", keepdims=0)
+    z = node("Mul", [c_now, const("front.inv_n", -1.0 / n)], "front.z")
+    dc = node("Sub", [c_before, c_now], "front.dc")
+    vz = node("Mul", [dc, const("front.inv_ndt", 1.0 / (n * front.dt_s))], "front.vz")
+    proj = node("MatMul", [now, axis], "front.proj")
+    below = node("Cast", [node("Less", [proj, zero], "front.below_b")], "front.below",
+                 to=TensorProto.FLOAT)
+    rank = node("ReduceSum", [below, "front.others"], "front.rank", keepdims=1)
+    one_hot = node("Cast", [node("Equal", [rank, ranks], "front.is_rank")], "front.one_hot",
+                   to=TensorProto.FLOAT)
+    starts, ends = const_i64("front.k0", [0]), const_i64("front.k1", [k])
+    near = node("Slice", [now, starts, ends, "front.others"], "front.near")
+    near_before = node("Slice", [before, starts, ends, "front.others"], "front.near_before")
+    moved = node("Mul", [node("Sub", [near, near_before], "front.dnear"),
+                         const("front.inv_dt", 1.0 / front.dt_s)], "front.moved")
+    nb = node("Concat", [near, moved], "front.nb3", axis=2)
+    nb = node("Reshape", [nb, const_i64("front.nb_shape", [-1, 4 * k])], "front.nb")
+    out = node("Concat", [z, vz, one_hot, nb], "front.rank_out", axis=1)
+    if not front.with_slots:
+        return nodes, out
+    slot = node("MatMul", [one_hot, const("front.slots", front.slots.numpy())], "front.slot")
+    sv = node("Sub", [slot, z], "front.sv")
+    length = node("ReduceL2", [sv], "front.sv_len", axes=[1], keepdims=1)
+    den = node("Max", [length, const("front.reach", front.reach_m)], "front.sv_den")
+    step = node("Div", [sv, den], "front.step")
+    return nodes, node("Concat", [sv, step, out], "front.out", axis=1)
