@@ -332,7 +332,9 @@ def config_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.
         if connect is None:
             connect = d_connect
         if listen is None:
-            listen = d_listen
+            # a client only connects (to a router); it never listens
+            client = args.zenoh_mode == "client"
+            listen = [] if client else d_listen
     return make_config(args.zenoh_mode, connect, listen, args.zenoh_config,
                        getattr(args, "multicast", None), getattr(args, "zenoh_cfg", None) or (),
                        ident)
