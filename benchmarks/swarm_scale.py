@@ -20,7 +20,8 @@ Reported per N:
 Part 2, **lockstep** with N = 10 and 20 robot processes: steps/s and pose -> command
 p50 / p99 (the world waits for every command or the deadline).
 
-Topology (``--topology``, default ``router``, as ``patternrl launch``): ``router``
+Topology (``--topology``, default ``auto`` as ``patternrl launch``: peer up to 20
+robots, router above): ``router``
 starts the swarm's Zenoh router (``patternrl router``, a process of its own) and
 the world and every robot are its clients, a link each; ``peer`` is the mesh
 (the world listens, every robot a peer that connects to it and then to every
@@ -125,13 +126,15 @@ def _pct(a: list[float], q: float) -> float | None:
 
 
 def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0,
-              topology: str = "router") -> dict[str, Any]:
+              topology: str = "auto") -> dict[str, Any]:
     """A world in this process and ``n`` robot processes; one circle (or ``max_steps``)."""
     from runtime.zenoh_session import open_session
-    from sim_bridge.launch import Robots, free_port
+    from sim_bridge.launch import PEER_MAX_ROBOTS, Robots, free_port
     from sim_bridge.router import RouterProcess
     from sim_bridge.sim_world import SimConfig, SimWorld
 
+    if topology == "auto":
+        topology = "router" if n > PEER_MAX_ROBOTS else "peer"
     swarm, port = f"bench-{mode}-{n}-{os.getpid()}", free_port()
     cfg = SimConfig(swarm=swarm, robots=n, patterns=["circle"], mode=mode, seed=seed,
                     max_steps=max_steps, wait_robots_s=600.0, first_step_deadline_ms=10_000.0)
@@ -234,9 +237,9 @@ def main() -> int:
     ap.add_argument("--max-steps", type=int, default=300,
                     help="step limit of a run (default 300; --quick 80)")
     ap.add_argument("--brain", default=str(BRAIN), help="the robots' brain (default general)")
-    ap.add_argument("--topology", choices=("router", "peer"), default="router",
-                    help="router (default): a Zenoh router, every process its client; peer: "
-                         "the peer mesh")
+    ap.add_argument("--topology", choices=("auto", "router", "peer"), default="auto",
+                    help="router: a Zenoh router, every process its client; peer: the peer "
+                         "mesh; auto (default, as launch): peer up to 20 robots, router above")
     ap.add_argument("--no-decision", action="store_true",
                     help="skip part 3 (one decision beside onnxruntime)")
     args = ap.parse_args()
@@ -272,7 +275,7 @@ def main() -> int:
     head = (f"{'robots':>6} {'steps/s':>7} {'late':>6} {'p50 ms':>7} {'p99 ms':>7} "
             f"{'cpu ms/robot/step':>17} {'PSS MB':>6} {'RSS MB':>6} {'start s':>7} "
             f"{'formed':>6} {'steps':>5} {'lb':>4} {'collisions':>10} {'links':>5} "
-            f"{'threads':>7} {'router ms/step':>14} {'load':>5}")
+            f"{'threads':>7} {'router ms/step':>14} {'load':>5} topology")
     print(head)
     for r in [*realtime, None, *lockstep]:
         if r is None:
@@ -286,7 +289,7 @@ def main() -> int:
               f"{'yes' if r['formed'] else 'no':>6} {r['steps']:>5} "
               f"{r['lower_bound_steps']:>4} {r['collisions']:>10} {r['tcp_links']!s:>5} "
               f"{r['threads_per_robot']!s:>7} {r['router_cpu_ms_per_step']!s:>14} "
-              f"{r['load_average_1min']:>5}")
+              f"{r['load_average_1min']:>5} {r['topology']}")
     if not decisions:
         return 0
     print("\none decision (Controller.decide, general brain, ORCA on) beside onnxruntime alone")

@@ -14,16 +14,17 @@ What it does:
 2. makes the run's keys (a swarm authority and one identity per member, in a
    private temporary directory removed at the end: :mod:`sim_bridge.launch_keys`;
    ``--tls-dir DIR`` uses keys of ``patternrl keys create``, ``--insecure`` runs
-   open TCP), starts the swarm's Zenoh router (``patternrl router``,
-   :mod:`sim_bridge.router`, the ``router`` identity) listening with mutual TLS on
-   a free loopback port, opens the world's Zenoh session as a client of it and
-   starts ``--robots`` robot processes (``patternrl robot``, each with its own
-   identity), clients of the router too, each with the first pattern's brain;
-   at every pattern change the world swaps in the next pattern's brain where it
-   differs (paper brains). ``--topology peer`` instead makes every process a
-   Zenoh peer: the world listens, the robots connect to it and then to each
-   other (a link per pair: fine for tens of robots, too heavy for 100 on 2 cores,
-   see README "Scale");
+   open TCP) and wires the run by ``--topology``: ``peer`` (up to 20 robots,
+   the default there) opens the world's Zenoh session as a peer listening with
+   mutual TLS on a free loopback port, and the robots, peers too, connect to it
+   and then to each other (a link per pair: one hop, fastest in lockstep);
+   ``router`` (the default above 20 robots) starts the swarm's Zenoh router
+   (``patternrl router``, :mod:`sim_bridge.router`, the ``router`` identity) on
+   that port and makes the world and every robot its clients (a link per
+   process: 101 links for 100 robots against 7,819 for the mesh). It starts
+   ``--robots`` robot processes (``patternrl robot``, each with its own
+   identity), each with the first pattern's brain; at every pattern change the
+   world swaps in the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
    MCAP log (``--record``, refused if it exists unless ``--force``; without it
    ``runs/demo.mcap``, the demo's own log, overwritten each run), serving it live
@@ -81,7 +82,9 @@ from sim_bridge.sim_world import SimWorld
 from sim_bridge.world_log import Say
 
 STOP_GRACE_S = 3.0
-TOPOLOGIES = ("router", "peer")
+TOPOLOGIES = ("auto", "router", "peer")
+PEER_MAX_ROBOTS = 20
+"""``--topology auto``: the peer mesh up to this many robots, a router above (README "Scale")."""
 ROBOT_SILENCE_EXIT_S = 20.0
 
 
@@ -100,10 +103,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="give up if the robots are not all alive by then (default 60)")
     p.add_argument("--zenoh-port", type=int, default=None,
                    help="the world's loopback port (default: a free one), e.g. to watch the run")
-    p.add_argument("--topology", choices=TOPOLOGIES, default="router",
-                   help="router (default): one Zenoh router process, the world and every robot "
-                        "its clients, a link each; peer: the world listens and every process "
-                        "is a peer, linked to every other (a link per pair)")
+    p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
+                   help=f"router: one Zenoh router process, the world and every robot its "
+                        f"clients, a link each; peer: the world listens and every process is a "
+                        f"peer, linked to every other (a link per pair, one hop less); auto "
+                        f"(default): peer up to {PEER_MAX_ROBOTS} robots, router above")
     p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
     p.add_argument("-v", "--verbose", action="store_true", help="every world message")
     add_zenoh_arguments(p)  # the world's session; --tls-dir: keys of 'patternrl keys create'
@@ -124,6 +128,14 @@ def free_port(preferred: int = 0) -> int:
     raise OSError("no free TCP port on 127.0.0.1")
 
 
+def topology_of(args: argparse.Namespace) -> str:
+    """``router`` or ``peer``: ``--topology``, with ``auto`` decided by ``--robots``."""
+    topology = getattr(args, "topology", "peer")
+    if topology == "auto":
+        return "router" if int(args.robots) > PEER_MAX_ROBOTS else "peer"
+    return str(topology)
+
+
 class Robots:
     """The robot processes: started together, stopped by PID, never left behind."""
 
@@ -140,7 +152,7 @@ class Robots:
                    "--id", str(rid), "--brain", brain, "--mode", args.mode,
                    "--zenoh-port", str(port), "--safety", args.safety,
                    "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
-            if getattr(args, "topology", "peer") == "router":  # the router's port is `port`
+            if topology_of(args) == "router":  # the router's port is `port`
                 cmd += ["--zenoh-mode", "client"]
             cmd += ["--insecure"] if keys_dir is None else ["--tls-dir", str(keys_dir)]
             for key in getattr(args, "trust", []):  # the run's operator key
@@ -326,10 +338,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         args.zenoh_port = port
         wargs = creds.world_args(args)
-        if args.topology == "router":
+        if topology_of(args) == "router":
             if args.connect or args.listen or args.zenoh_config or args.zenoh_mode:
                 raise InputError("-m/-e/-l/-c set up the world's own session: they go with "
-                                 "--topology peer")
+                                 f"--topology peer (auto: router above {PEER_MAX_ROBOTS} "
+                                 "robots)")
             router = RouterProcess(swarm, port, creds.dir, robots_log)
             router.start()
             wargs.zenoh_mode, wargs.connect, wargs.listen = "client", [router.endpoint], []
