@@ -54,7 +54,8 @@ def test_launch_forms_with_either_topology(tmp_path: Path, topology: str,
 
 
 def test_router_topology_refuses_the_worlds_own_endpoints(tmp_path: Path) -> None:
-    proc = launch(tmp_path, "--robots", "2", "--insecure", "-e", "tcp/127.0.0.1:7447")
+    proc = launch(tmp_path, "--robots", "2", "--insecure", "--topology", "router",
+                  "-e", "tcp/127.0.0.1:7447")
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[-1].startswith("patternrl launch: error: ")
     assert "--topology peer" in proc.stderr and "Traceback" not in proc.stderr
