@@ -65,6 +65,9 @@ STOP_GRACE_S = 3.0
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--swarm", required=True, help="swarm name ([A-Za-z0-9_-]+)")
     add_zenoh_arguments(p)  # -m defaults to router here; --tls-dir: identity DIR/router
+    p.epilog = ("Here -m defaults to router, listening on the swarm's port (--zenoh-port); "
+                "with --tls-dir DIR it speaks as DIR/router. Members connect as clients: "
+                "patternrl sim/robot/swap ... --zenoh-mode client (same --swarm and port).")
 
 
 def run(args: argparse.Namespace) -> int:
