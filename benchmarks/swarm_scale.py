@@ -20,6 +20,16 @@ Reported per N:
 Part 2, **lockstep** with N = 10 and 20 robot processes: steps/s and pose -> command
 p50 / p99 (the world waits for every command or the deadline).
 
+Topology (``--topology``, default ``auto`` as ``patternrl launch``: peer up to 20
+robots, router above): ``router``
+starts the swarm's Zenoh router (``patternrl router``, a process of its own) and
+the world and every robot are its clients, a link each; ``peer`` is the mesh
+(the world listens, every robot a peer that connects to it and then to every
+other). Beside each run: TCP links between the run's processes (read mid-run
+from /proc: both ends counted once), threads per robot process (median), and
+the router's CPU per step. Open TCP on loopback (``--insecure``) throughout, as
+the figures before; the TLS cost is the launcher's.
+
 Part 3, **one decision** (assignment + observation + brain + ORCA, the robot's
 :class:`runtime.decision.Controller`) at N = 10, 50, 100 with the general brain, beside
 onnxruntime alone (the same brain's ``act`` on one observation) in the same run: p50 and
@@ -27,6 +37,7 @@ p99 in microseconds, with the machine's load average printed beside them (run on
 idle machine and once busy to see both).
 
     .venv/bin/python benchmarks/swarm_scale.py [--json] [--quick] [--sizes 10,25,50,100]
+        [--topology router|peer] [--lockstep 10,20] [--no-decision]
 """
 
 from __future__ import annotations
@@ -70,20 +81,71 @@ def _mem_mb(pid: int) -> tuple[float, float]:
     return out["Pss:"], out["Rss:"]
 
 
+def _threads(pid: int) -> int:
+    """Threads of a process (/proc/<pid>/status), 0 if unreadable."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("Threads:"):
+                    return int(line.split()[1])
+    except (OSError, ValueError):
+        pass
+    return 0
+
+
+def _tcp_links(pids: list[int]) -> int:
+    """Established TCP connections among ``pids`` (a link between two of them counts once)."""
+    inodes: set[str] = set()
+    for pid in pids:
+        try:
+            for fd in os.listdir(f"/proc/{pid}/fd"):
+                try:
+                    target = os.readlink(f"/proc/{pid}/fd/{fd}")
+                except OSError:
+                    continue
+                if target.startswith("socket:["):
+                    inodes.add(target[8:-1])
+        except OSError:
+            continue
+    ends = 0
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            with open(table) as f:
+                next(f)
+                for line in f:
+                    cols = line.split()
+                    if cols[3] == "01" and cols[9] in inodes:  # 01: ESTABLISHED
+                        ends += 1
+        except OSError:
+            continue
+    return ends // 2
+
+
 def _pct(a: list[float], q: float) -> float | None:
     return round(float(np.percentile(a, q)), 3) if a else None
 
 
-def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0) -> dict[str, Any]:
+def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0,
+              topology: str = "auto") -> dict[str, Any]:
     """A world in this process and ``n`` robot processes; one circle (or ``max_steps``)."""
     from runtime.zenoh_session import open_session
-    from sim_bridge.launch import Robots, free_port
+    from sim_bridge.launch import PEER_MAX_ROBOTS, Robots, free_port
+    from sim_bridge.router import RouterProcess
     from sim_bridge.sim_world import SimConfig, SimWorld
 
+    if topology == "auto":
+        topology = "router" if n > PEER_MAX_ROBOTS else "peer"
     swarm, port = f"bench-{mode}-{n}-{os.getpid()}", free_port()
     cfg = SimConfig(swarm=swarm, robots=n, patterns=["circle"], mode=mode, seed=seed,
                     max_steps=max_steps, wait_robots_s=600.0, first_step_deadline_ms=10_000.0)
-    session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+    log = Path(os.environ.get("TMPDIR", "/tmp")) / f"{swarm}.robots.log"
+    router: RouterProcess | None = None
+    if topology == "router":
+        router = RouterProcess(swarm, port, None, log)
+        router.start()
+        session = open_session("client", connect=[router.endpoint], listen=[])
+    else:
+        session = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
     world = SimWorld(cfg, session, None, log=lambda msg, detail: None)
     robots = Robots()
     at: dict[str, Any] = {}
@@ -92,30 +154,39 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0) -> d
         if p.step == 1:
             at["t1"] = time.monotonic()
             at["cpu1"] = {r: _cpu_seconds(q.pid) for r, q in robots.procs.items()}
+            at["router_cpu1"] = _cpu_seconds(router.pid) if router and router.pid else 0.0
         if p.step == min(20, max_steps // 2):
             mem = [_mem_mb(q.pid) for q in robots.procs.values()]
             at["pss"] = [m[0] for m in mem]
             at["rss"] = [m[1] for m in mem]
+            pids = [q.pid for q in robots.procs.values()] + [os.getpid()]
+            if router is not None and router.pid is not None:
+                pids.append(router.pid)
+            at["links"] = _tcp_links(pids)
+            at["threads"] = [_threads(q.pid) for q in robots.procs.values()]
 
     world.on_progress = on_progress
     args = argparse.Namespace(mode=mode, safety="orca", rate_hz=1.0 / W.dt_s,
-                              step_deadline_ms=cfg.step_deadline_ms)
-    log = Path(os.environ.get("TMPDIR", "/tmp")) / f"{swarm}.robots.log"
+                              step_deadline_ms=cfg.step_deadline_ms, topology=topology)
     t0 = time.monotonic()
     try:
         robots.start(n, swarm, port, brain, args, log)
         res = world.run()
         cpu_end = {r: _cpu_seconds(q.pid) for r, q in robots.procs.items()}
+        router_cpu = (_cpu_seconds(router.pid) - at.get("router_cpu1", 0.0)
+                      if router is not None and router.pid is not None else None)
     finally:
         robots.stop()
         session.close()  # type: ignore[no-untyped-call]
+        if router is not None:
+            router.stop()
         log.unlink(missing_ok=True)
     (ph,) = res.phases
     steps = ph.steps
     cpu = sum(cpu_end[r] - at["cpu1"].get(r, 0.0) for r in cpu_end)
     lat = res.latencies_ms[n:]  # the first step waits for start-up
     return {
-        "n": n, "mode": mode, "steps": steps, "formed": ph.formed,
+        "n": n, "mode": mode, "topology": topology, "steps": steps, "formed": ph.formed,
         "lower_bound_steps": ph.lower_bound_steps, "collisions": ph.collisions,
         "min_separation_m": ph.min_separation_m,
         "steps_per_s": round(steps / ph.wall_s, 2) if ph.wall_s > 0 else None,
@@ -127,6 +198,11 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0) -> d
         "pss_mb_median": _pct(at.get("pss", []), 50),
         "rss_mb_median": _pct(at.get("rss", []), 50),
         "start_s": round(at["t1"] - t0, 2) if "t1" in at else None,
+        "tcp_links": at.get("links"),
+        "threads_per_robot": _pct(at.get("threads", []), 50),
+        "router_cpu_ms_per_step": (round(router_cpu * 1000.0 / max(1, steps - 1), 3)
+                                   if router_cpu is not None else None),
+        "load_average_1min": round(os.getloadavg()[0], 2),
     }
 
 
@@ -161,6 +237,11 @@ def main() -> int:
     ap.add_argument("--max-steps", type=int, default=300,
                     help="step limit of a run (default 300; --quick 80)")
     ap.add_argument("--brain", default=str(BRAIN), help="the robots' brain (default general)")
+    ap.add_argument("--topology", choices=("auto", "router", "peer"), default="auto",
+                    help="router: a Zenoh router, every process its client; peer: the peer "
+                         "mesh; auto (default, as launch): peer up to 20 robots, router above")
+    ap.add_argument("--no-decision", action="store_true",
+                    help="skip part 3 (one decision beside onnxruntime)")
     args = ap.parse_args()
     sizes = [int(x) for x in (args.sizes or ("10,25" if args.quick else "10,25,50,100"))
              .split(",") if x]
@@ -169,14 +250,18 @@ def main() -> int:
     samples = 2000 if args.quick else 20000
     load0 = os.getloadavg()[0]
     brain = load_brain(args.brain, W, None)
-    decisions = [decision_figures(brain, n, samples) for n in (10, 50, 100)]
-    realtime = [run_swarm(n, "realtime", max_steps, args.brain) for n in sizes]
-    lockstep = [run_swarm(n, "lockstep", max_steps, args.brain) for n in lock]
+    decisions = ([] if args.no_decision
+                 else [decision_figures(brain, n, samples) for n in (10, 50, 100)])
+    realtime = [run_swarm(n, "realtime", max_steps, args.brain, topology=args.topology)
+                for n in sizes]
+    lockstep = [run_swarm(n, "lockstep", max_steps, args.brain, topology=args.topology)
+                for n in lock]
     out = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "platform": platform.platform(), "load_average_1min_start": round(load0, 2),
                     "load_average_1min_end": round(os.getloadavg()[0], 2)},
-        "brain": Path(args.brain).name, "realtime": realtime, "lockstep": lockstep,
+        "brain": Path(args.brain).name, "topology": args.topology, "realtime": realtime,
+        "lockstep": lockstep,
         "decision": decisions,
     }
     if args.json:
@@ -186,10 +271,11 @@ def main() -> int:
     print(f"machine: {m['cpus']} cpus, python {m['python']}; 1-min load average "
           f"{m['load_average_1min_start']} at the start, {m['load_average_1min_end']} at the end")
     print(f"\nrealtime, 10 Hz target, brain {out['brain']}, ORCA on, one circle "
-          f"(or {max_steps} steps)")
+          f"(or {max_steps} steps), topology {args.topology}")
     head = (f"{'robots':>6} {'steps/s':>7} {'late':>6} {'p50 ms':>7} {'p99 ms':>7} "
             f"{'cpu ms/robot/step':>17} {'PSS MB':>6} {'RSS MB':>6} {'start s':>7} "
-            f"{'formed':>6} {'steps':>5} {'lb':>4} {'collisions':>10}")
+            f"{'formed':>6} {'steps':>5} {'lb':>4} {'collisions':>10} {'links':>5} "
+            f"{'threads':>7} {'router ms/step':>14} {'load':>5} topology")
     print(head)
     for r in [*realtime, None, *lockstep]:
         if r is None:
@@ -201,7 +287,11 @@ def main() -> int:
               f"{r['cpu_ms_per_robot_step']:>17.3f} {r['pss_mb_median']!s:>6} "
               f"{r['rss_mb_median']!s:>6} {r['start_s']!s:>7} "
               f"{'yes' if r['formed'] else 'no':>6} {r['steps']:>5} "
-              f"{r['lower_bound_steps']:>4} {r['collisions']:>10}")
+              f"{r['lower_bound_steps']:>4} {r['collisions']:>10} {r['tcp_links']!s:>5} "
+              f"{r['threads_per_robot']!s:>7} {r['router_cpu_ms_per_step']!s:>14} "
+              f"{r['load_average_1min']:>5} {r['topology']}")
+    if not decisions:
+        return 0
     print("\none decision (Controller.decide, general brain, ORCA on) beside onnxruntime alone")
     print(f"{'N':>4} {'p50 us':>7} {'p99 us':>7} {'quiet p99':>9} {'ort p50':>7} "
           f"{'ort p99':>7} {'p50 ratio':>9}")

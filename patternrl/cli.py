@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("sim_bridge.replay", "report, draw, play back or re-run an MCAP log"),
     "keys": ("sim_bridge.swarm_keys", "create a swarm's certificate authority and identities"),
     "brain": ("runtime.brain_cli", "make a signing key, sign a brain, verify its signature"),
+    "router": ("sim_bridge.router", "run the swarm's Zenoh router: every member its client"),
     "record": ("sim_bridge.record", "record a running swarm (simulated or real) into an MCAP log"),
 }
 

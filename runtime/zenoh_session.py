@@ -28,6 +28,12 @@ experiments on loopback, where anyone on the machine can join the swarm. A
 process given neither refuses to start; one given a config file (``-c``) uses
 it as written (the file is then the user's security choice).
 
+With a router (``patternrl router``; what ``patternrl launch`` starts for
+more than 20 robots) the router listens on that port instead, and the world,
+the robots and the tools run as Zenoh **clients** (``-m client``): each
+connects to the port and listens nowhere, so the swarm is a star of one link
+per process rather than a mesh of one link per pair.
+
 Robots do not need the world to be up first: a peer retries its ``connect``
 endpoint in the background. Once connected, Zenoh's gossip scouting (on by
 default) tells every peer about the others' listening endpoints, so peers
@@ -119,10 +125,17 @@ def world_endpoint(swarm: str, port: int | None = None, scheme: str = "tcp") -> 
 
 
 def session_endpoints(
-    role: Role, swarm: str, port: int | None = None, scheme: str = "tcp"
+    role: Role, swarm: str, port: int | None = None, scheme: str = "tcp",
+    mode: str | None = None,
 ) -> tuple[list[str], list[str]]:
-    """Default (connect, listen) endpoints of a process of ``role`` in ``swarm``."""
+    """Default (connect, listen) endpoints of a process of ``role`` in ``swarm``.
+
+    ``mode`` ``client``: connect to the swarm's port (a router's, ``patternrl
+    router``), listen nowhere, whatever the role.
+    """
     ep = world_endpoint(swarm, port, scheme)
+    if mode == "client":
+        return [ep], []
     if role in ("world", "router"):
         return [], [ep]
     return [ep], [f"{scheme}/{LOOPBACK}:0"]
@@ -328,7 +341,8 @@ def config_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.
     listen: list[str] | None = args.listen
     if args.zenoh_config is None:
         scheme = "tcp" if ident is None else "tls"
-        d_connect, d_listen = session_endpoints(role, swarm, args.zenoh_port, scheme)
+        d_connect, d_listen = session_endpoints(role, swarm, args.zenoh_port, scheme,
+                                                args.zenoh_mode)
         if connect is None:
             connect = d_connect
         if listen is None:

@@ -14,11 +14,17 @@ What it does:
 2. makes the run's keys (a swarm authority and one identity per member, in a
    private temporary directory removed at the end: :mod:`sim_bridge.launch_keys`;
    ``--tls-dir DIR`` uses keys of ``patternrl keys create``, ``--insecure`` runs
-   open TCP), opens the world's Zenoh session in peer mode, listening with mutual
-   TLS on a free loopback port, and starts ``--robots`` robot processes
-   (``patternrl robot``, each with its own identity) that connect to it, each
-   with the first pattern's brain; at every pattern change the world swaps in
-   the next pattern's brain where it differs (paper brains);
+   open TCP) and wires the run by ``--topology``: ``peer`` (up to 20 robots,
+   the default there) opens the world's Zenoh session as a peer listening with
+   mutual TLS on a free loopback port, and the robots, peers too, connect to it
+   and then to each other (a link per pair: one hop, fastest in lockstep);
+   ``router`` (the default above 20 robots) starts the swarm's Zenoh router
+   (``patternrl router``, :mod:`sim_bridge.router`, the ``router`` identity) on
+   that port and makes the world and every robot its clients (a link per
+   process: 101 links for 100 robots against 7,819 for the mesh). It starts
+   ``--robots`` robot processes (``patternrl robot``, each with its own
+   identity), each with the first pattern's brain; at every pattern change the
+   world swaps in the next pattern's brain where it differs (paper brains);
 3. runs the world in this process (:class:`sim_bridge.sim_world.SimWorld`), recording the
    MCAP log (``--record``, refused if it exists unless ``--force``; without it
    ``runs/demo.mcap``, the demo's own log, overwritten each run), serving it live
@@ -59,7 +65,6 @@ from runtime.errors import InputError
 from runtime.patterns import pattern_label
 from runtime.signing import run_operator_key
 from runtime.zenoh_session import (
-    ZenohSetupError,
     add_zenoh_arguments,
     config_from_args,
     open_config,
@@ -69,6 +74,7 @@ from sim_bridge.brain_choice import BrainChoice, pick_brains
 from sim_bridge.foxglove_live import FoxgloveLive, parse_address
 from sim_bridge.launch_keys import RunKeys, run_keys
 from sim_bridge.recorder import Recorder, check_output
+from sim_bridge.router import RouterProcess
 from sim_bridge.run_results import PhaseResult, Progress, RunResult, result_dict
 from sim_bridge.sim import add_world_arguments, start_live
 from sim_bridge.sim import config_from_args as world_config_from_args
@@ -76,6 +82,9 @@ from sim_bridge.sim_world import SimWorld
 from sim_bridge.world_log import Say
 
 STOP_GRACE_S = 3.0
+TOPOLOGIES = ("auto", "router", "peer")
+PEER_MAX_ROBOTS = 20
+"""``--topology auto``: the peer mesh up to this many robots, a router above (README "Scale")."""
 ROBOT_SILENCE_EXIT_S = 20.0
 
 
@@ -94,6 +103,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="give up if the robots are not all alive by then (default 60)")
     p.add_argument("--zenoh-port", type=int, default=None,
                    help="the world's loopback port (default: a free one), e.g. to watch the run")
+    p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
+                   help=f"router: one Zenoh router process, the world and every robot its "
+                        f"clients, a link each; peer: the world listens and every process is a "
+                        f"peer, linked to every other (a link per pair, one hop less); auto "
+                        f"(default): peer up to {PEER_MAX_ROBOTS} robots, router above")
     p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
     p.add_argument("-v", "--verbose", action="store_true", help="every world message")
     add_zenoh_arguments(p)  # the world's session; --tls-dir: keys of 'patternrl keys create'
@@ -114,6 +128,14 @@ def free_port(preferred: int = 0) -> int:
     raise OSError("no free TCP port on 127.0.0.1")
 
 
+def topology_of(args: argparse.Namespace) -> str:
+    """``router`` or ``peer``: ``--topology``, with ``auto`` decided by ``--robots``."""
+    topology = getattr(args, "topology", "peer")
+    if topology == "auto":
+        return "router" if int(args.robots) > PEER_MAX_ROBOTS else "peer"
+    return str(topology)
+
+
 class Robots:
     """The robot processes: started together, stopped by PID, never left behind."""
 
@@ -130,6 +152,8 @@ class Robots:
                    "--id", str(rid), "--brain", brain, "--mode", args.mode,
                    "--zenoh-port", str(port), "--safety", args.safety,
                    "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
+            if topology_of(args) == "router":  # the router's port is `port`
+                cmd += ["--zenoh-mode", "client"]
             cmd += ["--insecure"] if keys_dir is None else ["--tls-dir", str(keys_dir)]
             for key in getattr(args, "trust", []):  # the run's operator key
                 cmd += ["--trust", key]
@@ -310,10 +334,22 @@ def run(args: argparse.Namespace) -> int:
     except InputError as e:
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
+    router: RouterProcess | None = None
     try:
         args.zenoh_port = port
-        session = open_config(config_from_args(creds.world_args(args), "world", swarm))
-    except ZenohSetupError as e:
+        wargs = creds.world_args(args)
+        if topology_of(args) == "router":
+            if args.connect or args.listen or args.zenoh_config or args.zenoh_mode:
+                raise InputError("-m/-e/-l/-c set up the world's own session: they go with "
+                                 f"--topology peer (auto: router above {PEER_MAX_ROBOTS} "
+                                 "robots)")
+            router = RouterProcess(swarm, port, creds.dir, robots_log)
+            router.start()
+            wargs.zenoh_mode, wargs.connect, wargs.listen = "client", [router.endpoint], []
+        session = open_config(config_from_args(wargs, "world", swarm))
+    except InputError as e:  # ZenohSetupError too
+        if router is not None:
+            router.stop()
         creds.close()
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
@@ -325,6 +361,9 @@ def run(args: argparse.Namespace) -> int:
         if live is not None:
             live.close()
         session.close()  # type: ignore[no-untyped-call]
+        if router is not None:
+            router.stop()
+        creds.close()
         print(f"patternrl launch: error: {e}", file=sys.stderr)
         return 2
     world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
@@ -348,8 +387,9 @@ def run(args: argparse.Namespace) -> int:
                 return
 
     first = brains[patterns[0]].ref
+    hub = "router" if router is not None else "world, peers"
     say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
-        f"(zenoh {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
+        f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
     res: RunResult | None = None
     try:
         world.open()  # listening before the robots come: their first status says their brain
@@ -365,6 +405,8 @@ def run(args: argparse.Namespace) -> int:
         if live is not None:
             live.close()
         session.close()  # type: ignore[no-untyped-call]
+        if router is not None:  # last: the world's final messages go through it
+            router.stop()
         creds.close()
         for s, h in old.items():
             signal.signal(s, h)

@@ -70,16 +70,24 @@ def test_late_commands_never_collide(procs: Any, tmp_path: Path, kit: Any) -> No
     assert (np.linalg.norm(last - first, axis=1) > 0.05).all()
 
 
-def test_thirty_robot_processes_decide_in_realtime(procs: Any, tmp_path: Path, kit: Any) -> None:
+@pytest.mark.parametrize("topology", ["peer", "router"])
+def test_thirty_robot_processes_decide_in_realtime(procs: Any, tmp_path: Path, kit: Any,
+                                                   topology: str) -> None:
     """30 robot processes and the world at 10 Hz: every robot's command arrived (at all,
-    early or late) for >= 95 % of the steps it was in."""
+    early or late) for >= 95 % of the steps it was in. ``router``: a ``patternrl router``
+    process, the world and every robot its Zenoh clients (what launch runs above 20)."""
     n, steps = 30, 40
-    swarm, port, log = swarm_name("thirty"), kit.free_port(), tmp_path / "thirty.mcap"
+    swarm, port, log = swarm_name(f"thirty-{topology}"), kit.free_port(), tmp_path / "thirty.mcap"
+    star: tuple[str, ...] = ()
+    if topology == "router":
+        procs.start("router", "router", "--insecure", "--swarm", swarm, "--zenoh-port", str(port))
+        kit.wait_for(lambda: "router ready:" in procs.log("router"), 60, "the router")
+        star = ("--zenoh-mode", "client")
     world = procs.world(swarm, port, "--robots", str(n), "--patterns", "circle",
                         "--seed", "1", "--mode", "realtime", "--max-steps", str(steps),
-                        "--record", str(log), "--wait-robots-s", "150")
+                        "--record", str(log), "--wait-robots-s", "150", *star)
     for i in range(n):
-        procs.robot(swarm, port, i, "--mode", "realtime", "--exit-after-silence-s", "3")
+        procs.robot(swarm, port, i, "--mode", "realtime", "--exit-after-silence-s", "3", *star)
     assert world.wait(timeout=220) in (0, 1), procs.log("world")[-2000:]  # 1: not formed
 
     run = read_log(log)

@@ -1,0 +1,212 @@
+"""The star topology: a ``patternrl router`` process, every member its Zenoh client.
+
+Real processes and real sessions on loopback, mutual TLS and access control on:
+
+* the router enforces the swarm's rules on what it relays: a client holding robot
+  1's certificate reaches the world with robot 1's command and token, never with
+  robot 2's command, a brain, a pattern or a phantom robot (the same forgeries on
+  open TCP through an open router do arrive, so the rules are what stops them);
+* a client without a certificate of the swarm's authority cannot connect at all;
+* an operator's brain swap (``patternrl swap``, a client) reaches robot processes
+  (clients) through the router, and their answers come back to it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+from support import free_port, stop_processes, wait_for
+
+from runtime import keys
+from runtime.identity import load_identity
+from runtime.messages import Command, encode_command
+from runtime.zenoh_session import ZenohSetupError, make_config, open_config
+from sim_bridge.router import RouterProcess
+from sim_bridge.swarm_keys import create_swarm_keys
+
+SWARM = "star"
+ROOT = Path(__file__).resolve().parents[2]
+FORGED_KEYS = (keys.cmd_key(SWARM, 2), keys.status_key(SWARM, 2), keys.pose_key(SWARM, 2),
+               keys.brain_key(SWARM), keys.pattern_key(SWARM))
+pytestmark = pytest.mark.timeout(180)
+
+
+@pytest.fixture(scope="module")
+def swarm_keys(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("keys") / SWARM
+    create_swarm_keys(out, SWARM, 3)
+    return out
+
+
+@pytest.fixture
+def router(swarm_keys: Path, tmp_path: Path) -> Iterator[RouterProcess]:
+    r = RouterProcess(SWARM, free_port(), swarm_keys, tmp_path / "router.log")
+    r.start()
+    try:
+        yield r
+    finally:
+        r.stop()
+
+
+def client(keys_dir: Path | None, name: str | None, endpoint: str) -> zenoh.Session:
+    ident = load_identity(keys_dir / name) if keys_dir is not None and name else None
+    return open_config(make_config("client", [endpoint], [], identity=ident))
+
+
+def cmd(robot_id: int, step: int, brain: str = "forged") -> bytes:
+    return encode_command(Command(robot_id, step, 1.0, 0.0, brain, False, 0.0, 0.0))
+
+
+class Seen:
+    """Everything a session receives on the swarm's keys, and the robots' tokens it sees."""
+
+    def __init__(self, s: zenoh.Session) -> None:
+        self.lock = threading.Lock()
+        self.samples: list[tuple[str, bytes]] = []
+        self.alive: set[str] = set()
+        self._decls = [
+            s.declare_subscriber(keys.swarm_root(SWARM), self._on),
+            s.liveliness().declare_subscriber(keys.all_alive(SWARM), self._on_alive,
+                                              history=True),
+        ]
+
+    def _on(self, s: zenoh.Sample) -> None:
+        with self.lock:
+            self.samples.append((str(s.key_expr), s.payload.to_bytes()))
+
+    def _on_alive(self, s: zenoh.Sample) -> None:
+        with self.lock:
+            if s.kind == zenoh.SampleKind.PUT:
+                self.alive.add(str(s.key_expr).rsplit("/", 1)[1])
+
+    def keys(self) -> set[str]:
+        with self.lock:
+            return {k for k, _ in self.samples}
+
+    def has(self, key: str, payload: bytes) -> bool:
+        with self.lock:
+            return (key, payload) in self.samples
+
+    def close(self) -> None:
+        for d in self._decls:
+            d.undeclare()  # type: ignore[no-untyped-call]
+
+
+def forge_then_fence(attacker: zenoh.Session, seen: Seen) -> list[object]:
+    """Robot 1 forges what it has no right to, then sends its own command and token.
+
+    One link each way through the router keeps order, so once the fence is in, every
+    forgery that was going to arrive has.
+    """
+    hello = cmd(1, 0, "hello")
+
+    def heard() -> bool:
+        attacker.put(keys.cmd_key(SWARM, 1), hello)
+        return seen.has(keys.cmd_key(SWARM, 1), hello)
+
+    wait_for(heard, 30, "the world to hear robot 1 through the router", poll=0.05)
+    for step in range(3):
+        for key in FORGED_KEYS:
+            attacker.put(key, cmd(2, step))
+    tokens = [attacker.liveliness().declare_token(keys.alive_key(SWARM, 77)),
+              attacker.liveliness().declare_token(keys.alive_key(SWARM, 1))]
+    fence = cmd(1, 999, "fence")
+    attacker.put(keys.cmd_key(SWARM, 1), fence)
+    wait_for(lambda: seen.has(keys.cmd_key(SWARM, 1), fence), 20, "robot 1's own command")
+    wait_for(lambda: "1" in seen.alive, 20, "robot 1's own liveliness token")
+    return tokens
+
+
+def test_the_router_relays_robot_1s_keys_only(router: RouterProcess, swarm_keys: Path) -> None:
+    with client(swarm_keys, "world", router.endpoint) as world, \
+            client(swarm_keys, "robot-1", router.endpoint) as attacker:
+        seen = Seen(world)
+        try:
+            tokens = forge_then_fence(attacker, seen)
+            assert not set(FORGED_KEYS) & seen.keys(), seen.keys()
+            assert seen.alive == {"1"}  # no phantom robot 77
+            for t in tokens:
+                t.undeclare()  # type: ignore[attr-defined]
+        finally:
+            seen.close()
+        # both are clients: one link each, to the router, none between them
+        assert list(world.info.peers_zid()) == []
+        assert [str(z) for z in world.info.routers_zid()] == \
+            [str(z) for z in attacker.info.routers_zid()]
+
+
+def test_an_open_router_relays_the_same_forgeries(tmp_path: Path) -> None:
+    r = RouterProcess(SWARM, free_port(), None, tmp_path / "router.log")
+    r.start()
+    try:
+        with client(None, None, r.endpoint) as world, client(None, None, r.endpoint) as attacker:
+            seen = Seen(world)
+            try:
+                tokens = forge_then_fence(attacker, seen)
+                assert set(FORGED_KEYS) <= seen.keys()
+                assert {"77", "1"} <= seen.alive
+                for t in tokens:
+                    t.undeclare()  # type: ignore[attr-defined]
+            finally:
+                seen.close()
+    finally:
+        r.stop()
+
+
+def test_a_client_without_the_swarms_certificate_cannot_connect(
+        router: RouterProcess, swarm_keys: Path, tmp_path: Path) -> None:
+    other = tmp_path / "other"
+    create_swarm_keys(other, SWARM, 3)  # the same swarm name, another authority
+    plain_tcp = router.endpoint.replace("tls/", "tcp/")
+    for make in (lambda: client(other, "robot-1", router.endpoint),
+                 lambda: client(None, None, plain_tcp)):
+        with pytest.raises(ZenohSetupError):
+            make().close()  # type: ignore[no-untyped-call]
+    with client(swarm_keys, "robot-0", router.endpoint) as member:  # the router is up
+        assert len(list(member.info.routers_zid())) == 1
+
+
+def test_an_operators_swap_reaches_robot_clients_through_the_router(
+        router: RouterProcess, swarm_keys: Path, tmp_path: Path) -> None:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env.pop("PATTERNRL_ZENOH_PORT", None)
+    base = [sys.executable, "-m", "patternrl.cli"]
+    star = ["--tls-dir", str(swarm_keys), "--zenoh-port", str(router.port),
+            "--zenoh-mode", "client"]
+    procs: list[subprocess.Popen[bytes]] = []
+    logs = []
+    try:
+        for i in range(3):
+            log = open(tmp_path / f"robot{i}.log", "wb")
+            logs.append(log)
+            procs.append(subprocess.Popen(
+                [*base, "robot", "--swarm", SWARM, "--id", str(i), "--brain",
+                 str(ROOT / "exports" / "general.onnx"), "--exit-after-silence-s", "5", *star],
+                cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stdout=log,
+                stderr=subprocess.STDOUT, start_new_session=True))
+        with client(swarm_keys, "world", router.endpoint) as world:
+            seen = Seen(world)
+            try:
+                wait_for(lambda: {"0", "1", "2"} <= seen.alive, 60, "three robots alive")
+            finally:
+                seen.close()
+        swap = subprocess.run(
+            [*base, "swap", "--swarm", SWARM, "--brain", "rule:assign", "--timeout-s", "30",
+             "--json", *star],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=90, check=False)
+        assert swap.returncode == 0, swap.stdout + swap.stderr
+        out = json.loads(swap.stdout)
+        assert out["ok"] and sorted(r["robot"] for r in out["robots"]) == [0, 1, 2], out
+        assert all(r["accepted"] and r["new_brain"] == "rule:assign" for r in out["robots"])
+    finally:
+        stop_processes(procs)
+        for log in logs:
+            log.close()
