@@ -193,7 +193,7 @@ def fit_decoder(agent: Agent, opt: Optimisers, obs: torch.Tensor) -> None:
         return
     dec_opt = torch.optim.Adam(agent.decoder.parameters(), lr=1e-3)
     # a few thousand rows do
-    target = agent.normalised(obs[:: max(1, obs.shape[0] // DECODER_FIT_ROWS)])
+    target = agent.normaliser(obs[:: max(1, obs.shape[0] // DECODER_FIT_ROWS)])
     e = agent.encoder(target)
     with torch.enable_grad():
         for _ in range(DECODER_FIT_STEPS):

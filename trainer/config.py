@@ -42,7 +42,7 @@ from trainer.reward import RewardConfig
 
 Algo = Literal["pattern-rl", "ppo"]
 ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")
-FRONT_END_NAMES: tuple[str, ...] = ("auto", "none", "rank", "slots")
+FRONT_END_NAMES: tuple[str, ...] = ("auto", "none", "rank", "slots", "transport")
 
 
 @dataclass(frozen=True)
@@ -146,7 +146,7 @@ class TrainConfig:
         if self.front_end not in FRONT_END_NAMES:
             raise ValueError(f"unknown front end '{self.front_end}' "
                              f"(known: {', '.join(FRONT_END_NAMES)})")
-        if self.front_end in ("rank", "slots") and self.obs != "paper":
+        if self.front_end not in ("auto", "none") and self.obs != "paper":
             raise ValueError(f"the {self.front_end} front end reads the paper observation "
                              "(--obs paper)")
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):

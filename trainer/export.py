@@ -219,7 +219,9 @@ def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Age
     has_ae = "encoder.0.weight" in w
     if "front.axis" in w and cfg.obs != "paper":
         raise BrainFileError(f"{path} reads the paper observation; train it with --obs paper")
-    front = ("slots" if "front.slots" in w else "rank") if "front.axis" in w else "none"
+    front = "none"
+    if "front.axis" in w:
+        front = "transport" if "front.g_init" in w else "slots" if "front.slots" in w else "rank"
     cfg = cfg.with_(residual="rule.dt" in w, front_end=front)
     dt_s = float(w["rule.dt"]) if "rule.dt" in w else 0.1
     if "front.inv_dt" in w:

@@ -42,12 +42,18 @@ from torch import nn
 from trainer.rank import TEAM_AXIS
 
 NEAREST = 6
-FRONT_ENDS = ("none", "rank", "slots")
+MODES = ("rank", "slots", "transport")
+SINKHORN_EPS = tuple(float(e) for e in np.geomspace(4.0, 1e-3, 36)) + (1e-3,) * 4
+"""The entropic regularisation of each Sinkhorn iteration (m^2), large to small: the
+matching anneals from "every slot a little" to one slot per robot (epsilon scaling)."""
 
 
-def front_dim(n_robots: int, slots: bool = False) -> int:
+def front_dim(n_robots: int, mode: str = "rank") -> int:
     """Length of the front end's output for a team of ``n_robots``."""
-    return 4 * slots + 4 + n_robots + 4 * min(NEAREST, n_robots - 1)
+    k = min(NEAREST, n_robots - 1)
+    if mode == "transport":
+        return 8 + 4 * k
+    return 4 * (mode == "slots") + 4 + n_robots + 4 * k
 
 
 class RankFrontEnd(nn.Module):
@@ -57,20 +63,23 @@ class RankFrontEnd(nn.Module):
     ranks: torch.Tensor
     slots: torch.Tensor
 
-    def __init__(self, n_robots: int, dt_s: float, reach_m: float, with_slots: bool = False,
+    def __init__(self, n_robots: int, dt_s: float, reach_m: float, mode: str = "rank",
                  axis: np.ndarray = TEAM_AXIS) -> None:
         super().__init__()
+        if mode not in MODES:
+            raise ValueError(f"unknown front end '{mode}' (known: {', '.join(MODES)})")
         self.n = int(n_robots)
         self.k = min(NEAREST, self.n - 1)
         self.dt_s, self.reach_m = float(dt_s), float(reach_m)
-        self.with_slots = bool(with_slots)
+        self.mode = mode
+        self.with_slots = mode != "rank"  # carries its pattern (set_pattern)
         self.register_buffer("axis", torch.tensor(np.asarray(axis), dtype=torch.float32))
         self.register_buffer("ranks", torch.arange(self.n, dtype=torch.float32))
         self.register_buffer("slots", torch.zeros(self.n, 2))
-        self.out_dim = front_dim(self.n, self.with_slots)
+        self.out_dim = front_dim(self.n, mode)
 
     def set_pattern(self, pattern: np.ndarray) -> None:
-        """``slots`` variant: the pattern's (n, 2) points, centred and listed in rank order."""
+        """``slots``/``transport``: the pattern's (n, 2) points, centred, in rank order."""
         C = np.asarray(pattern, dtype=np.float64)
         C = C - C.mean(axis=0)
         self.slots.copy_(torch.from_numpy(C[np.argsort(C @ self.axis.double().numpy(),
@@ -87,12 +96,35 @@ class RankFrontEnd(nn.Module):
         near = now[:, : self.k]
         moved = (near - before[:, : self.k]) * (1.0 / self.dt_s)
         nb = torch.cat([near, moved], dim=2).reshape(-1, 4 * self.k)
+        if self.mode == "transport":
+            team = torch.cat([z[:, None, :], now + z[:, None, :]], dim=1)  # about the centroid
+            sv = self.transport_slot(team) - z
+            step = sv / sv.norm(dim=1, keepdim=True).clamp_min(self.reach_m)
+            return torch.cat([sv, step, z, vz, nb], dim=1)
         out = torch.cat([z, vz, one_hot, nb], dim=1)
-        if not self.with_slots:
+        if self.mode == "rank":
             return out
         sv = one_hot @ self.slots - z  # slot vector: own slot minus own position (m)
         step = sv / sv.norm(dim=1, keepdim=True).clamp_min(self.reach_m)
         return torch.cat([sv, step, out], dim=1)
+
+    def transport_slot(self, team: torch.Tensor) -> torch.Tensor:
+        """The robot's slot (B, 2) under the team's optimal matching to the pattern.
+
+        ``team`` (B, n, 2): the team's positions about its centroid, the robot's own
+        first. Entropic optimal transport (Sinkhorn, log domain, epsilon annealed by
+        :data:`SINKHORN_EPS`) between the team and the pattern's slots with the cost
+        of :func:`runtime.formation.assign_slots` (squared distance): every robot
+        solves the same problem from its own view, so the matchings agree; row 0 is
+        the robot's own, a soft one-hot over the slots, whose mean is its slot.
+        """
+        cost = (team[:, :, None, :] - self.slots[None, None, :, :]).pow(2).sum(-1)
+        g = torch.zeros(cost.shape[0], 1, self.n, dtype=team.dtype)
+        for eps in SINKHORN_EPS:
+            f = -eps * torch.logsumexp((g - cost) * (1.0 / eps), dim=2, keepdim=True)
+            g = -eps * torch.logsumexp((f - cost) * (1.0 / eps), dim=1, keepdim=True)
+        own = torch.softmax((g[:, 0] - cost[:, 0]) * (1.0 / SINKHORN_EPS[-1]), dim=1)
+        return own @ self.slots
 
 
 def onnx_nodes(front: RankFrontEnd, x: str,
@@ -136,12 +168,55 @@ def onnx_nodes(front: RankFrontEnd, x: str,
                          const("front.inv_dt", 1.0 / front.dt_s)], "front.moved")
     nb = node("Concat", [near, moved], "front.nb3", axis=2)
     nb = node("Reshape", [nb, const_i64("front.nb_shape", [-1, 4 * k])], "front.nb")
+    if front.mode == "transport":
+        slot = _transport_nodes(front, now, z, node, const, const_i64)
+        sv, step = _slot_step_nodes(front, slot, z, node, const)
+        return nodes, node("Concat", [sv, step, z, vz, nb], "front.out", axis=1)
     out = node("Concat", [z, vz, one_hot, nb], "front.rank_out", axis=1)
     if not front.with_slots:
         return nodes, out
     slot = node("MatMul", [one_hot, const("front.slots", front.slots.numpy())], "front.slot")
+    sv, step = _slot_step_nodes(front, slot, z, node, const)
+    return nodes, node("Concat", [sv, step, out], "front.out", axis=1)
+
+
+Node = Callable[..., str]
+
+
+def _slot_step_nodes(front: RankFrontEnd, slot: str, z: str, node: Node,
+                     const: Callable[[str, np.ndarray | float], str]) -> tuple[str, str]:
+    """Slot vector (slot - z) and the step toward it, saturated at one reach."""
     sv = node("Sub", [slot, z], "front.sv")
     length = node("ReduceL2", [sv], "front.sv_len", axes=[1], keepdims=1)
     den = node("Max", [length, const("front.reach", front.reach_m)], "front.sv_den")
-    step = node("Div", [sv, den], "front.step")
-    return nodes, node("Concat", [sv, step, out], "front.out", axis=1)
+    return sv, node("Div", [sv, den], "front.step")
+
+
+def _transport_nodes(front: RankFrontEnd, now: str, z: str, node: Node,
+                     const: Callable[[str, np.ndarray | float], str],
+                     const_i64: Callable[[str, list[int]], str]) -> str:
+    """:meth:`RankFrontEnd.transport_slot` as nodes, its Sinkhorn iterations unrolled."""
+    n = front.n
+    zu = node("Unsqueeze", [z, const_i64("front.ax1", [1])], "front.z3")
+    team = node("Concat", [zu, node("Add", [now, zu], "front.others_c")], "front.team", axis=1)
+    team4 = node("Unsqueeze", [team, const_i64("front.ax2", [2])], "front.team4")
+    slots4 = const("front.slots4", front.slots.numpy()[None, None])
+    diff = node("Sub", [team4, slots4], "front.diff")
+    cost = node("ReduceSum", [node("Mul", [diff, diff], "front.diff2"),
+                              const_i64("front.ax3", [3])], "front.cost", keepdims=0)
+    g = const("front.g_init", np.zeros((1, 1, n)))
+    for i, eps in enumerate(SINKHORN_EPS):
+        inv, neg = const(f"front.inv_eps{i}", 1.0 / eps), const(f"front.neg_eps{i}", -eps)
+        t = node("Mul", [node("Sub", [g, cost], f"front.gc{i}"), inv], f"front.gt{i}")
+        f = node("Mul", [node("ReduceLogSumExp", [t], f"front.flse{i}", axes=[2], keepdims=1),
+                         neg], f"front.f{i}")
+        t = node("Mul", [node("Sub", [f, cost], f"front.fc{i}"), inv], f"front.ft{i}")
+        g = node("Mul", [node("ReduceLogSumExp", [t], f"front.glse{i}", axes=[1], keepdims=1),
+                         neg], f"front.g{i}")
+    cost0 = node("Gather", [cost, const_i64("front.self", [0])], "front.cost0", axis=1)
+    g_row = node("Squeeze", [g, "front.ax1"], "front.g_row")
+    logits = node("Mul", [node("Sub", [g_row, node("Squeeze", [cost0, "front.ax1"],
+                                                    "front.cost0r")], "front.own_gc"),
+                          const("front.inv_eps_last", 1.0 / SINKHORN_EPS[-1])], "front.own_t")
+    own = node("Softmax", [logits], "front.own", axis=1)
+    return node("MatMul", [own, const("front.slots", front.slots.numpy())], "front.slot")

@@ -156,9 +156,8 @@ class Agent(nn.Module):
         self.residual = bool(getattr(cfg, "residual", False))
         self.dt_s = float(dt_s)
         self.front: RankFrontEnd | None = None
-        if cfg.front in ("rank", "slots"):
-            slots = cfg.front == "slots"
-            self.front = RankFrontEnd(cfg.n_robots, dt_s, v_max_mps * dt_s, with_slots=slots)
+        if cfg.front != "none":
+            self.front = RankFrontEnd(cfg.n_robots, dt_s, v_max_mps * dt_s, mode=cfg.front)
             if obs_dim != 6 * (cfg.n_robots - 1):
                 raise ValueError(f"the rank front end reads the paper observation, not {obs_dim}")
             obs_dim = self.front.out_dim
@@ -193,10 +192,12 @@ class Agent(nn.Module):
         """The fixed front end's output (trainer.front_end); the observation itself without."""
         return obs if self.front is None else self.front(obs)
 
-    def normalised(self, obs: torch.Tensor) -> torch.Tensor:
-        """The normaliser's output for raw observations (B, obs_dim)."""
-        out: torch.Tensor = self.normaliser(self.front_features(obs))
-        return out
+    @property
+    def feature_dim(self) -> int:
+        """What the normaliser reads: the front end's output, else the observation's length.
+        The rollout memory stores this (the front end has no weights, so it is computed once
+        per sample, not again in every update)."""
+        return int(self.normaliser.shift.numel())
 
     def update_normaliser(self, obs: torch.Tensor) -> None:
         """Fold raw observations (..., obs_dim) into the normaliser's statistics."""
@@ -205,8 +206,8 @@ class Agent(nn.Module):
             self.normaliser.update(self.front_features(raw))
 
     def features(self, obs: torch.Tensor) -> torch.Tensor:
-        """e = I_mu(normalise(o)); the normalised observation itself without auto-encoder."""
-        out: torch.Tensor = self.encoder(self.normalised(obs))
+        """e = I_mu(normalise(front(o))) for raw observations (B, obs_dim)."""
+        out: torch.Tensor = self.encoder(self.normaliser(self.front_features(obs)))
         return out
 
     def act_mps(self, obs: torch.Tensor) -> torch.Tensor:

@@ -35,7 +35,7 @@ F32 = NDArray[np.float32]
 class RolloutBatch(NamedTuple):
     """Flat training samples, one row per (step, world, robot). Tensors, float32."""
 
-    obs: torch.Tensor  # (S, D) raw observations
+    obs: torch.Tensor  # (S, D) what the normaliser reads: the observation or the front end's
     actions: torch.Tensor  # (S, 2) sampled actions in units of v_max
     old_mean: torch.Tensor  # (S, 2) behaviour policy mean (units of v_max)
     old_std: torch.Tensor  # (S, 2) behaviour policy std

@@ -216,12 +216,13 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     V of the episode's last observation.
     """
     E, N, T = cfg.n_envs, cfg.n_robots, cfg.rollout_steps
-    mem = Rollout(T, E, N, bw.obs_dim)
+    mem = Rollout(T, E, N, agent.feature_dim)  # holds what the normaliser reads
     returns: list[float] = []
     success: list[bool] = []
     with torch.no_grad():
         for _ in range(T):
-            e = agent.features(torch.from_numpy(obs.reshape(E * N, -1)))
+            front = agent.front_features(torch.from_numpy(obs.reshape(E * N, -1)))
+            e = agent.encoder(agent.normaliser(front))
             mean, std = agent.policy(e)
             value = agent.value(e)
             a = mean + std * torch.randn(mean.shape, generator=gen)
@@ -238,8 +239,8 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
                     reward[ep.env_ids[trunc]] += cfg.gamma * v_last.reshape(-1, N)
                 returns += ep.episode_return.tolist()
                 success += (ep.formed & (ep.collisions == 0)).tolist()
-            mem.add(obs, a.numpy().reshape(E, N, 2), mean.numpy().reshape(E, N, 2),
-                    std.numpy().reshape(E, N, 2), logp.numpy().reshape(E, N),
+            mem.add(front.numpy().reshape(E, N, -1), a.numpy().reshape(E, N, 2),
+                    mean.numpy().reshape(E, N, 2), std.numpy().reshape(E, N, 2), logp.numpy().reshape(E, N),
                     value.numpy().reshape(E, N), reward, res.done)
             obs = res.obs
         o_t = torch.from_numpy(obs.reshape(E * N, -1))
@@ -389,7 +390,7 @@ def _learn(st: TrainState, batch: RolloutBatch, cfg: TrainConfig, lr_scale: floa
     if st.fit_decoder:
         fit_decoder(st.agent, st.opt, batch.obs)
         st.fit_decoder = False
-    st.agent.update_normaliser(batch.obs)
+    st.agent.normaliser.update(batch.obs)
     base_lrs = [cfg.lr_ae, cfg.lr_policy, cfg.lr_value]  # in Optimisers order
     for o_, lr in zip(st.opt, base_lrs, strict=True):
         for g in o_.param_groups if o_ is not None else []:

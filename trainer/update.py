@@ -153,7 +153,7 @@ def update(
 ) -> UpdateStats:
     """Algorithm 1, lines 5-23, on one iteration's memory ``b``; the stats hold the new lambda."""
     n = b.obs.shape[0]
-    obs = agent.normalised(b.obs)  # the normaliser is frozen during an update
+    obs = agent.normaliser(b.obs)  # the normaliser is frozen during an update
 
     # ---- lines 5-7: train the auto-encoder on the stored observations
     ae_loss = float("nan")

@@ -131,7 +131,7 @@ def test_slots_front_end_points_each_robot_at_its_rank_slot(tmp_path: Path) -> N
     agent.front.set_pattern(make_pattern("circle", N))
     x = obs.reshape(6 * N, -1)
     f = agent.front(torch.from_numpy(x)).numpy().reshape(6, N, -1)
-    assert f.shape[-1] == front_dim(N, slots=True)
+    assert f.shape[-1] == front_dim(N, "slots")
     goals, _ = rank_goals(bw._X, bw._C)  # the world's rank matching, the reward's goals
     want = goals.transpose(2, 1, 0) - bw.positions
     assert np.allclose(f[..., 0:2], want, atol=1e-5)
@@ -169,3 +169,44 @@ def test_progress_toward_rank_goals_telescopes_so_swapping_goals_cannot_be_farme
     _, d_end = rank_goals(bw._X, bw._C)
     assert swaps > 10
     assert np.allclose(total * bw.world.max_step_m, (d_start - d_end).T, atol=1e-4)
+
+
+@pytest.mark.parametrize("pattern", ["circle", "heart", "line"])
+def test_transport_front_end_finds_the_optimal_assignment_from_the_paper_observation(
+    pattern: str,
+) -> None:
+    from runtime.formation import assign_slots
+
+    C = make_pattern(pattern, N)
+    Cc = C - C.mean(axis=0)
+    agent = Agent(SPEC.dim, TrainConfig(obs="paper", n_robots=N, front_end="transport"), 1.0)
+    assert agent.front is not None
+    agent.front.set_pattern(C)
+    E = 40
+    bw = BatchWorld(E, N, pattern, SPEC, seed=11)
+    f = agent.front(torch.from_numpy(bw.observe().reshape(E * N, -1))).numpy().reshape(E, N, -1)
+    P = bw.positions
+    mine = f[..., 0:2] + (P - P.mean(axis=1, keepdims=True))  # slot about the centroid
+    exact = 0
+    for e in range(E):
+        want = Cc[assign_slots(P[e], C)]  # scipy's optimal assignment, centred
+        exact += bool(np.abs(mine[e] - want).max() < 1e-3)
+    assert exact >= 0.85 * E  # the rest: near-ties, where the soft matching blends two slots
+
+
+def test_transport_brain_exports_and_reads_back(tmp_path: Path) -> None:
+    _, obs = world_obs(8)
+    cfg = TrainConfig(obs="paper", n_robots=N, front_end="transport")
+    agent = Agent(SPEC.dim, cfg, 1.0)
+    assert agent.front is not None
+    agent.front.set_pattern(make_pattern("triangle", N))
+    agent.update_normaliser(torch.from_numpy(obs))
+    x = obs.reshape(6 * N, -1)
+    model = build_onnx(agent)
+    got = ort.InferenceSession(model.SerializeToString()).run(["action"], {"obs": x})[0]
+    want = agent.act_mps(torch.from_numpy(x)).detach().numpy()
+    assert np.allclose(got, want, atol=1e-5)
+    onnx.save(model, tmp_path / "t.onnx")
+    back = agent_from_onnx(tmp_path / "t.onnx", TrainConfig(obs="paper", n_robots=N), 1.0)
+    assert back.front is not None and back.front.mode == "transport"
+    assert np.allclose(back.act_mps(torch.from_numpy(x)).detach().numpy(), want, atol=1e-6)
