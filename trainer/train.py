@@ -240,8 +240,8 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
                 returns += ep.episode_return.tolist()
                 success += (ep.formed & (ep.collisions == 0)).tolist()
             mem.add(front.numpy().reshape(E, N, -1), a.numpy().reshape(E, N, 2),
-                    mean.numpy().reshape(E, N, 2), std.numpy().reshape(E, N, 2), logp.numpy().reshape(E, N),
-                    value.numpy().reshape(E, N), reward, res.done)
+                    mean.numpy().reshape(E, N, 2), std.numpy().reshape(E, N, 2),
+                    logp.numpy().reshape(E, N), value.numpy().reshape(E, N), reward, res.done)
             obs = res.obs
         o_t = torch.from_numpy(obs.reshape(E * N, -1))
         last_values = agent.value(agent.features(o_t)).numpy().reshape(E, N)
