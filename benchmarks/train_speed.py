@@ -140,7 +140,8 @@ def summarise(rows: list[dict[str, Any]], target: float) -> list[dict[str, Any]]
 def _fig5_run(algo: str, seed: int, args: argparse.Namespace) -> tuple[list[dict[str, Any]], str]:
     """One Fig. 5 run (a process of its own with ``--jobs``): its curve and a log line."""
     cfg = TrainConfig(algo=algo, obs=args.fig5_obs, n_robots=args.robots, seed=seed,
-                      front_end=args.fig5_front_end)
+                      front_end=args.fig5_front_end,
+                      eval_every=10**6)  # the figure plots training rewards: no held-out runs
     plan = RunPlan(
         patterns=args.fig5_patterns,
         out=Path(args.out_dir) / "unused.onnx",

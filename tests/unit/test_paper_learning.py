@@ -33,7 +33,7 @@ def rewards(curve: list[dict[str, object]]) -> list[float]:
     return [r for r in out if math.isfinite(r)]
 
 
-@pytest.mark.parametrize("front_end", ["rank", "slots"])
+@pytest.mark.parametrize("front_end", ["rank", "transport"])
 def test_paper_brain_mean_reward_rises(tmp_path: Path, front_end: str) -> None:
     cfg = SMALL.with_(front_end=front_end)
     plan = RunPlan(patterns=["line"], out=tmp_path / "p.onnx", episodes=400, progress=False,
@@ -43,3 +43,18 @@ def test_paper_brain_mean_reward_rises(tmp_path: Path, front_end: str) -> None:
     assert len(r) >= 12
     first, last = float(np.mean(r[:4])), float(np.mean(r[-4:]))
     assert last > first + 0.25 * abs(first) + 1.0, (first, last)
+
+
+def test_a_pattern_sequence_gives_the_brain_each_stage_s_pattern(tmp_path: Path) -> None:
+    from runtime.patterns import make_pattern
+
+    cfg = SMALL.with_(front_end="transport")
+    plan = RunPlan(patterns=["circle", "line"], out=tmp_path / "s.onnx", episodes=8,
+                   progress=False, write_files=False, world=SMALL_WORLD)
+    res = train(cfg, plan)
+    front = res.agent.front
+    assert front is not None and front.mode == "transport"
+    line = make_pattern("line", 4)
+    line = line - line.mean(axis=0)
+    got = sorted(tuple(round(float(v), 4) for v in p) for p in front.slots.numpy())
+    assert got == sorted(tuple(round(float(v), 4) for v in p) for p in line)
