@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from trainer.config import TrainConfig  # noqa: E402
+from trainer.config import FRONT_END_NAMES, TrainConfig  # noqa: E402
 from trainer.train import RunPlan, train  # noqa: E402
 
 
@@ -238,7 +238,7 @@ def main() -> int:
     p.add_argument("--fig5-episodes", type=int, default=300, help="per pattern stage (300)")
     p.add_argument("--fig5-seeds", type=int, default=4)
     p.add_argument("--fig5-obs", default="general")
-    p.add_argument("--fig5-front-end", default="auto", choices=["auto", "none", "rank", "slots"],
+    p.add_argument("--fig5-front-end", default="auto", choices=list(FRONT_END_NAMES),
                    help="the brain's front end for the Fig. 5 runs (trainer.front_end)")
     p.add_argument("--jobs", type=int, default=1,
                    help="Fig. 5 runs side by side, one process each (for machines with more "

@@ -85,7 +85,11 @@ class RankFrontEnd(nn.Module):
         self.slots.copy_(torch.from_numpy(C[np.argsort(C @ self.axis.double().numpy(),
                                                        kind="stable")]))
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+    def forward(self, obs: torch.Tensor, team_rows: int = 0) -> torch.Tensor:
+        """Features (B, out_dim). ``team_rows`` = n when the rows come in whole teams
+        (row b is robot b % n of team b // n, as the training world lays them out): the
+        transport is then solved once per team instead of once per robot, the same
+        matching (it is one problem, seen from each robot), ~n times less work."""
         o = obs.reshape(-1, 3, self.n - 1, 2)
         now, before = o[:, 0], o[:, 1]
         c_now, c_before = now.sum(1), before.sum(1)
@@ -98,7 +102,10 @@ class RankFrontEnd(nn.Module):
         nb = torch.cat([near, moved], dim=2).reshape(-1, 4 * self.k)
         if self.mode == "transport":
             team = torch.cat([z[:, None, :], now + z[:, None, :]], dim=1)  # about the centroid
-            sv = self.transport_slot(team) - z
+            if team_rows == self.n and team.shape[0] % self.n == 0:
+                sv = self.team_transport_slots(team) - z
+            else:
+                sv = self.transport_slot(team) - z
             step = sv / sv.norm(dim=1, keepdim=True).clamp_min(self.reach_m)
             return torch.cat([sv, step, z, vz, nb], dim=1)
         out = torch.cat([z, vz, one_hot, nb], dim=1)
@@ -118,13 +125,31 @@ class RankFrontEnd(nn.Module):
         solves the same problem from its own view, so the matchings agree; row 0 is
         the robot's own, a soft one-hot over the slots, whose mean is its slot.
         """
+        cost, g = self._sinkhorn(team)
+        own = torch.softmax((g[:, 0] - cost[:, 0]) * (1.0 / SINKHORN_EPS[-1]), dim=1)
+        return own @ self.slots
+
+    def team_transport_slots(self, team: torch.Tensor) -> torch.Tensor:
+        """:meth:`transport_slot` for rows that come in whole teams (see :meth:`forward`):
+        solved from each team's first robot's view, every member's slot read off the row
+        whose position is the member's own."""
+        B, n = team.shape[0], self.n
+        lead = team[::n]  # (E, n, 2): each team from its first robot's view
+        cost, g = self._sinkhorn(lead)
+        plan = torch.softmax((g - cost) * (1.0 / SINKHORN_EPS[-1]), dim=2)  # (E, n, n)
+        slots = plan @ self.slots  # (E, n, 2): each member's slot, in the lead's order
+        own = team[:, 0].reshape(B // n, n, 2)  # each robot's own position, team by team
+        which = (own[:, :, None, :] - lead[:, None, :, :]).pow(2).sum(-1).argmin(-1)
+        return torch.take_along_dim(slots, which[..., None], dim=1).reshape(B, 2)
+
+    def _sinkhorn(self, team: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Cost (B, n, n) and the slots' potentials g (B, 1, n) after the annealing."""
         cost = (team[:, :, None, :] - self.slots[None, None, :, :]).pow(2).sum(-1)
         g = torch.zeros(cost.shape[0], 1, self.n, dtype=team.dtype)
         for eps in SINKHORN_EPS:
             f = -eps * torch.logsumexp((g - cost) * (1.0 / eps), dim=2, keepdim=True)
             g = -eps * torch.logsumexp((f - cost) * (1.0 / eps), dim=1, keepdim=True)
-        own = torch.softmax((g[:, 0] - cost[:, 0]) * (1.0 / SINKHORN_EPS[-1]), dim=1)
-        return own @ self.slots
+        return cost, g
 
 
 def onnx_nodes(front: RankFrontEnd, x: str,

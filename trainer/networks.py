@@ -188,9 +188,10 @@ class Agent(nn.Module):
         out: torch.Tensor = v * (self.v_max_mps / torch.clamp_min(sp, self.v_max_mps))
         return out
 
-    def front_features(self, obs: torch.Tensor) -> torch.Tensor:
-        """The fixed front end's output (trainer.front_end); the observation itself without."""
-        return obs if self.front is None else self.front(obs)
+    def front_features(self, obs: torch.Tensor, team_rows: int = 0) -> torch.Tensor:
+        """The fixed front end's output (trainer.front_end); the observation itself without.
+        ``team_rows``: n when the rows come in whole teams (a shortcut, same result)."""
+        return obs if self.front is None else self.front(obs, team_rows)
 
     @property
     def feature_dim(self) -> int:
@@ -205,9 +206,15 @@ class Agent(nn.Module):
             raw = torch.as_tensor(obs).reshape(-1, self.obs_dim)
             self.normaliser.update(self.front_features(raw))
 
-    def features(self, obs: torch.Tensor) -> torch.Tensor:
+    def features(self, obs: torch.Tensor, team_rows: int = 0) -> torch.Tensor:
         """e = I_mu(normalise(front(o))) for raw observations (B, obs_dim)."""
-        out: torch.Tensor = self.encoder(self.normaliser(self.front_features(obs)))
+        out: torch.Tensor = self.encoder(self.normaliser(self.front_features(obs, team_rows)))
+        return out
+
+    def act_team_mps(self, obs: torch.Tensor, team_rows: int) -> torch.Tensor:
+        """:meth:`act_mps` for rows that come in whole teams of ``team_rows`` robots."""
+        mean, _ = self.policy(self.features(obs, team_rows))
+        out: torch.Tensor = mean * self.v_max_mps + self.base_mps(obs)
         return out
 
     def act_mps(self, obs: torch.Tensor) -> torch.Tensor:

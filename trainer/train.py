@@ -173,7 +173,7 @@ def evaluate_policy(
     collisions = np.zeros(episodes, np.int64)
     error = np.zeros(episodes)
     while not done.all():
-        act = agent.act_mps(torch.from_numpy(obs.reshape(-1, bw.obs_dim)))
+        act = agent.act_team_mps(torch.from_numpy(obs.reshape(-1, bw.obs_dim)), cfg.n_robots)
         res = bw.step(act.numpy().reshape(episodes, cfg.n_robots, 2))
         obs = res.obs
         ep = res.episode
@@ -221,7 +221,7 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     success: list[bool] = []
     with torch.no_grad():
         for _ in range(T):
-            front = agent.front_features(torch.from_numpy(obs.reshape(E * N, -1)))
+            front = agent.front_features(torch.from_numpy(obs.reshape(E * N, -1)), N)
             e = agent.encoder(agent.normaliser(front))
             mean, std = agent.policy(e)
             value = agent.value(e)
@@ -235,7 +235,7 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
                 trunc = res.truncated[ep.env_ids]
                 if trunc.any():  # bootstrap a time-limit cut with V(last obs)
                     last = torch.from_numpy(ep.final_obs[trunc].reshape(-1, bw.obs_dim))
-                    v_last = agent.value(agent.features(last)).numpy()
+                    v_last = agent.value(agent.features(last, N)).numpy()
                     reward[ep.env_ids[trunc]] += cfg.gamma * v_last.reshape(-1, N)
                 returns += ep.episode_return.tolist()
                 success += (ep.formed & (ep.collisions == 0)).tolist()
@@ -244,7 +244,7 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
                     logp.numpy().reshape(E, N), value.numpy().reshape(E, N), reward, res.done)
             obs = res.obs
         o_t = torch.from_numpy(obs.reshape(E * N, -1))
-        last_values = agent.value(agent.features(o_t)).numpy().reshape(E, N)
+        last_values = agent.value(agent.features(o_t, N)).numpy().reshape(E, N)
     batch = mem.batch(last_values, cfg.gamma, cfg.returns, cfg.gae_lambda)
     return RolloutResult(batch, obs, returns, success)
 

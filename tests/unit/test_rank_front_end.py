@@ -210,3 +210,14 @@ def test_transport_brain_exports_and_reads_back(tmp_path: Path) -> None:
     back = agent_from_onnx(tmp_path / "t.onnx", TrainConfig(obs="paper", n_robots=N), 1.0)
     assert back.front is not None and back.front.mode == "transport"
     assert np.allclose(back.act_mps(torch.from_numpy(x)).detach().numpy(), want, atol=1e-6)
+
+
+def test_transport_solved_once_per_team_equals_once_per_robot() -> None:
+    _, obs = world_obs(9)
+    agent = Agent(SPEC.dim, TrainConfig(obs="paper", n_robots=N, front_end="transport"), 1.0)
+    assert agent.front is not None
+    agent.front.set_pattern(make_pattern("heart", N))
+    x = torch.from_numpy(obs.reshape(6 * N, -1))
+    per_robot = agent.front(x).numpy()
+    per_team = agent.front(x, team_rows=N).numpy()
+    assert np.allclose(per_team, per_robot, atol=2e-4)
