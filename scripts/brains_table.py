@@ -2,7 +2,8 @@
 
 Usage: .venv/bin/python scripts/brains_table.py [exports]
 Every figure comes from the brain's manifest, written by `patternrl train` after
-evaluating the exported brain on 100 held-out episodes with the ORCA filter on.
+evaluating the exported brain on 100 held-out episodes with the ORCA filter on, and
+the same episodes raw (filter off) where the manifest has them.
 """
 
 from __future__ import annotations
@@ -12,6 +13,13 @@ import sys
 from pathlib import Path
 
 GOAL_SUCCESS = 0.95
+
+
+def raw_text(raw: dict[str, float] | None) -> str:
+    """The raw (filter off) evaluation's success and collisions per episode, if measured."""
+    if not raw:
+        return "-"
+    return f"{raw['success_rate']:.2f}, {raw['collisions_per_episode']:.2f}"
 
 
 def main() -> int:
@@ -35,13 +43,14 @@ def main() -> int:
             f"| {tr.get('algorithm', '?')} | {tr.get('episodes', '?')} "
             f"| {tr.get('wall_time_s', '?')} | {num('success_rate')} "
             f"| {ev.get('collisions', '?')} | {num('steps_ratio')} "
-            f"| {num('travel_ratio')} | {'met' if ok else 'missed'} |"
+            f"| {num('travel_ratio')} | {raw_text(ev.get('raw'))} | {'met' if ok else 'missed'} |"
         )
     print(
         "| brain | observation | pattern | algorithm | episodes | train s | success "
-        "| collisions | steps / lb | travel / lb | goal (>= 95 %, 0 collisions) |"
+        "| collisions | steps / lb | travel / lb | raw: success, collisions / episode "
+        "| goal (>= 95 %, 0 collisions) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
 

@@ -18,8 +18,10 @@ if [ "$what" = general ] || [ "$what" = all ]; then
 fi
 if [ "$what" = paper ] || [ "$what" = all ]; then
     for p in circle cross line heart triangle; do
-        train --pattern "$p" --obs paper --seed 0 --episodes 100000 --lr-decay \
-            --time-budget-s "${PAPER_BUDGET_S:-300}" --out "exports/$p-10-paper.onnx"
+        # Algorithm 1 on the paper's observation; the brain's front end matches the team to
+        # its pattern by optimal transport (docs/paper_observation.md)
+        train --pattern "$p" --obs paper --seed 0 --until-success 0.99 \
+            --time-budget-s "${PAPER_BUDGET_S:-600}" --out "exports/$p-10-paper.onnx"
     done
 fi
 if [ "$what" = any ] || [ "$what" = all ]; then

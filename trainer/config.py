@@ -60,11 +60,13 @@ class TrainConfig:
     """``general`` only: the action is ``rule:assign``'s velocity plus the policy's
     (:class:`trainer.networks.Agent`), so a brain starts at the rule."""
     front_end: str = "auto"
-    """``rank``: the paper brain's fixed front end (trainer.front_end: centroid, rank along
-    the team axis, nearest others) before the normaliser, and the per-robot progress reward
-    toward the rank matching's slot (trainer.rank); ``slots``: the same, and the brain
-    carries its pattern's points in rank order and sees its slot vector; ``none``: the
-    observation as it is; ``auto``: ``rank`` for the paper observation, else ``none``."""
+    """The paper brain's fixed front end before the normaliser (trainer.front_end), read from
+    the paper observation alone: ``transport`` (the team matched to its pattern by optimal
+    transport, the robot's slot vector in front: the one that learns, see
+    docs/paper_observation.md); ``rank`` (the robot's rank along the team axis, one-hot: the
+    brain learns the slot table) and ``slots`` (the rank matching's slot vector), both with the
+    per-robot progress toward the rank matching's slot (trainer.rank); ``none``: the
+    observation as it is; ``auto``: ``transport`` for the paper observation, else ``none``."""
     n_robots: int = 10
     seed: int = 0
 
@@ -157,7 +159,7 @@ class TrainConfig:
     def front(self) -> str:
         """The front end in effect: ``rank`` or ``none`` (``auto`` resolved)."""
         if self.front_end == "auto":
-            return "rank" if self.obs == "paper" else "none"
+            return "transport" if self.obs == "paper" else "none"
         return self.front_end
 
     @property

@@ -118,7 +118,8 @@ def test_exported_brain_with_the_front_end_equals_the_agent_and_reads_back(tmp_p
 def test_front_end_is_refused_on_the_general_observation() -> None:
     with pytest.raises(ValueError, match="paper observation"):
         TrainConfig(obs="general", front_end="rank")
-    assert TrainConfig(obs="paper").front == "rank"
+    assert TrainConfig(obs="paper").front == "transport"
+    assert TrainConfig(obs="paper", front_end="rank").front == "rank"
     assert TrainConfig(obs="paper", front_end="none").front == "none"
     assert TrainConfig(obs="general").front == "none"
 
