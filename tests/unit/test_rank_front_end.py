@@ -21,7 +21,7 @@ from trainer.training_world import BatchWorld
 
 N = 10
 SPEC = ObservationSpec("paper", n_robots=N)
-CFG = TrainConfig(obs="paper", n_robots=N)
+CFG = TrainConfig(obs="paper", n_robots=N, front_end="rank")
 
 
 def robot_major(P: np.ndarray) -> np.ndarray:
