@@ -60,7 +60,7 @@ def test_precedence_defaults_file_options_set(tmp_path) -> None:
 
 def test_every_field_can_be_set_both_ways() -> None:
     base = TrainConfig()
-    strings = {"algo": "ppo", "obs": "paper", "returns": "mc"}
+    strings = {"algo": "ppo", "obs": "paper", "returns": "mc", "front_end": "none"}
     for f in dataclasses.fields(TrainConfig):
         if f.name == "reward":
             continue
@@ -81,6 +81,15 @@ def test_every_field_can_be_set_both_ways() -> None:
         assert getattr(via_set, f.name) == new == getattr(via_file, f.name), f.name
     for k in (f.name for f in dataclasses.fields(RewardConfig)):
         assert apply_changes(base, parse_set([f"reward.{k}=0.25"]), "--set").reward == {k: 0.25}
+
+
+def test_front_end_is_checked_against_the_observation() -> None:
+    paper = TrainConfig(obs="paper")
+    assert apply_changes(paper, parse_set(["front_end=rank"]), "--set").front == "rank"
+    with pytest.raises(ConfigError, match="transport front end reads the paper observation"):
+        apply_changes(TrainConfig(), parse_set(["front_end=transport"]), "--set")
+    with pytest.raises(ConfigError, match="unknown front end 'ot'"):
+        apply_changes(paper, parse_set(["front_end=ot"]), "--set")
 
 
 @pytest.mark.parametrize(
