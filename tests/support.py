@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import socket
 import subprocess
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -40,3 +41,42 @@ def stop_processes(procs: list[subprocess.Popen[Any]], timeout: float = 5.0) -> 
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait(timeout=timeout)
+
+
+class Seen:
+    """Everything a Zenoh session receives on a swarm's keys, and the liveliness tokens it sees."""
+
+    def __init__(self, s: Any, swarm: str) -> None:
+        from runtime import keys
+
+        self.lock = threading.Lock()
+        self.samples: list[tuple[str, bytes]] = []
+        self.alive: set[str] = set()
+        self._decls = [
+            s.declare_subscriber(keys.swarm_root(swarm), self._on),
+            s.liveliness().declare_subscriber(keys.all_alive(swarm), self._on_alive,
+                                              history=True),
+        ]
+
+    def _on(self, s: Any) -> None:
+        with self.lock:
+            self.samples.append((str(s.key_expr), s.payload.to_bytes()))
+
+    def _on_alive(self, s: Any) -> None:
+        import zenoh
+
+        with self.lock:
+            if s.kind == zenoh.SampleKind.PUT:
+                self.alive.add(str(s.key_expr).rsplit("/", 1)[1])
+
+    def keys(self) -> set[str]:
+        with self.lock:
+            return {k for k, _ in self.samples}
+
+    def has(self, key: str, payload: bytes) -> bool:
+        with self.lock:
+            return (key, payload) in self.samples
+
+    def close(self) -> None:
+        for d in self._decls:
+            d.undeclare()

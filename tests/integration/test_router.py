@@ -17,13 +17,12 @@ import json
 import os
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import zenoh
-from support import free_port, stop_processes, wait_for
+from support import Seen, free_port, stop_processes, wait_for
 
 from runtime import keys
 from runtime.identity import load_identity
@@ -65,41 +64,6 @@ def cmd(robot_id: int, step: int, brain: str = "forged") -> bytes:
     return encode_command(Command(robot_id, step, 1.0, 0.0, brain, False, 0.0, 0.0))
 
 
-class Seen:
-    """Everything a session receives on the swarm's keys, and the robots' tokens it sees."""
-
-    def __init__(self, s: zenoh.Session) -> None:
-        self.lock = threading.Lock()
-        self.samples: list[tuple[str, bytes]] = []
-        self.alive: set[str] = set()
-        self._decls = [
-            s.declare_subscriber(keys.swarm_root(SWARM), self._on),
-            s.liveliness().declare_subscriber(keys.all_alive(SWARM), self._on_alive,
-                                              history=True),
-        ]
-
-    def _on(self, s: zenoh.Sample) -> None:
-        with self.lock:
-            self.samples.append((str(s.key_expr), s.payload.to_bytes()))
-
-    def _on_alive(self, s: zenoh.Sample) -> None:
-        with self.lock:
-            if s.kind == zenoh.SampleKind.PUT:
-                self.alive.add(str(s.key_expr).rsplit("/", 1)[1])
-
-    def keys(self) -> set[str]:
-        with self.lock:
-            return {k for k, _ in self.samples}
-
-    def has(self, key: str, payload: bytes) -> bool:
-        with self.lock:
-            return (key, payload) in self.samples
-
-    def close(self) -> None:
-        for d in self._decls:
-            d.undeclare()  # type: ignore[no-untyped-call]
-
-
 def forge_then_fence(attacker: zenoh.Session, seen: Seen) -> list[object]:
     """Robot 1 forges what it has no right to, then sends its own command and token.
 
@@ -128,7 +92,7 @@ def forge_then_fence(attacker: zenoh.Session, seen: Seen) -> list[object]:
 def test_the_router_relays_robot_1s_keys_only(router: RouterProcess, swarm_keys: Path) -> None:
     with client(swarm_keys, "world", router.endpoint) as world, \
             client(swarm_keys, "robot-1", router.endpoint) as attacker:
-        seen = Seen(world)
+        seen = Seen(world, SWARM)
         try:
             tokens = forge_then_fence(attacker, seen)
             assert not set(FORGED_KEYS) & seen.keys(), seen.keys()
@@ -148,7 +112,7 @@ def test_an_open_router_relays_the_same_forgeries(tmp_path: Path) -> None:
     r.start()
     try:
         with client(None, None, r.endpoint) as world, client(None, None, r.endpoint) as attacker:
-            seen = Seen(world)
+            seen = Seen(world, SWARM)
             try:
                 tokens = forge_then_fence(attacker, seen)
                 assert set(FORGED_KEYS) <= seen.keys()
@@ -193,7 +157,7 @@ def test_an_operators_swap_reaches_robot_clients_through_the_router(
                 cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stdout=log,
                 stderr=subprocess.STDOUT, start_new_session=True))
         with client(swarm_keys, "world", router.endpoint) as world:
-            seen = Seen(world)
+            seen = Seen(world, SWARM)
             try:
                 wait_for(lambda: {"0", "1", "2"} <= seen.alive, 60, "three robots alive")
             finally:

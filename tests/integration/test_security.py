@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from support import free_port, wait_for
+from support import Seen, free_port, wait_for
 
 from runtime import keys
 from runtime.identity import load_identity
@@ -43,41 +43,6 @@ def session(keys_dir: Path | None, name: str | None, connect: list[str],
             listen: list[str]) -> zenoh.Session:
     ident = load_identity(keys_dir / name) if keys_dir is not None and name else None
     return open_config(make_config("peer", connect, listen, identity=ident))
-
-
-class Seen:
-    """What a session received on the swarm's keys, and the liveliness tokens it saw."""
-
-    def __init__(self, s: zenoh.Session) -> None:
-        self.lock = threading.Lock()
-        self.samples: list[tuple[str, bytes]] = []
-        self.alive: set[str] = set()
-        self._decls = [
-            s.declare_subscriber(keys.swarm_root(SWARM), self._on),
-            s.liveliness().declare_subscriber(keys.all_alive(SWARM), self._on_alive,
-                                              history=True),
-        ]
-
-    def _on(self, s: zenoh.Sample) -> None:
-        with self.lock:
-            self.samples.append((str(s.key_expr), s.payload.to_bytes()))
-
-    def _on_alive(self, s: zenoh.Sample) -> None:
-        with self.lock:
-            if s.kind == zenoh.SampleKind.PUT:
-                self.alive.add(str(s.key_expr).rsplit("/", 1)[1])
-
-    def keys(self) -> set[str]:
-        with self.lock:
-            return {k for k, _ in self.samples}
-
-    def has(self, key: str, payload: bytes) -> bool:
-        with self.lock:
-            return (key, payload) in self.samples
-
-    def close(self) -> None:
-        for d in self._decls:
-            d.undeclare()  # type: ignore[no-untyped-call]
 
 
 def cmd(robot_id: int, step: int, brain: str = "forged") -> bytes:
@@ -122,7 +87,7 @@ def join(attacker: zenoh.Session, seen: Seen) -> None:
 def tls_world(swarm_keys: Path) -> Iterator[tuple[zenoh.Session, Seen, str]]:
     ep = f"tls/127.0.0.1:{free_port()}"
     s = session(swarm_keys, "world", [], [ep])
-    seen = Seen(s)
+    seen = Seen(s, SWARM)
     try:
         yield s, seen, ep
     finally:
@@ -145,7 +110,7 @@ def test_robot_1s_certificate_publishes_robot_1s_keys_only(
 def test_on_open_tcp_the_same_forgeries_arrive() -> None:
     ep = f"tcp/127.0.0.1:{free_port()}"
     with session(None, None, [], [ep]) as w, session(None, None, [ep], []) as attacker:
-        seen = Seen(w)
+        seen = Seen(w, SWARM)
         try:
             join(attacker, seen)
             tokens = attack_and_fence(attacker, seen)
