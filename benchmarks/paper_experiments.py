@@ -405,8 +405,8 @@ def fig5_section(fig5_dir: Path, figures: Path, run_it: bool, quick: bool) -> di
         ts = _bench("train_speed")
         a = argparse.Namespace(
             algos=["pattern-rl", "ppo"], robots=10, fig5_seeds=1 if quick else 4,
-            fig5_obs="general", fig5_patterns=["circle", "cross"],
-            fig5_episodes=40 if quick else 300, out_dir=str(fig5_dir),
+            fig5_obs="paper", fig5_front_end="auto", fig5_patterns=["circle", "cross"],
+            fig5_episodes=40 if quick else 150, out_dir=str(fig5_dir), jobs=os.cpu_count() or 1,
         )
         fig5_dir.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
@@ -773,8 +773,9 @@ def write_doc(ctx: dict[str, Any], path: Path) -> None:
     # ---- (b)
     f5 = ctx["fig5"]
     L += ["## (b) Learning curves, Pattern-RL vs standard PPO (paper IV.C, Fig. 5)", ""]
-    regen = ("`.venv/bin/python benchmarks/train_speed.py --skip-speed --fig5 --fig5-seeds 4 "
-             "--fig5-episodes 300 --out-dir benchmarks/results`, then this script with "
+    regen = ("`.venv/bin/python benchmarks/train_speed.py --skip-speed --fig5 --fig5-obs paper "
+             "--fig5-seeds 4 --fig5-episodes 150 --jobs 2 --out-dir benchmarks/results`, then "
+             "this script with "
              "`--fig5-dir benchmarks/results` (or this script with `--fig5-run`)")
     if "png" in f5:
         L += [f"From `benchmarks/train_speed.py --fig5` (the trainer's benchmark), read from "
