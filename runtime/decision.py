@@ -196,7 +196,9 @@ def _filtered(
     if not (math.isfinite(ox) and math.isfinite(oy)):
         ox = oy = 0.0  # as orca_filter: an unknown own velocity counts as zero
     rx, ry, changed, change = orca_velocity(vx, vy, ox, oy, near, nb_vel, world, safety)
-    return Command(clamp_speed(rx, ry, world.v_max_mps), changed, change)
+    # the filter clamps its result to v_max (both ways of taking the norm): the
+    # final clamp of step 4 would change nothing
+    return Command((rx, ry), changed, change)
 
 
 def _near_in_order(

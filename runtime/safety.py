@@ -68,10 +68,10 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 __all__ = [
     "FilterResult",
     "OrcaParams",
+    "nearest_in_range",
     "orca_filter",
     "orca_filter_batch",
     "orca_velocity",
-    "nearest_in_range",
 ]
 
 _EPS = 1e-5  # RVO_EPSILON: parallel-line test in the linear programs
