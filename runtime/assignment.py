@@ -124,7 +124,12 @@ def certify_assignment(
 
 
 def certify_team(
-    cost: Array, slots: IntArray, tol_m2: float, duals: Array, max_rounds: int = CERTIFY_ROUNDS
+    cost: Array,
+    slots: IntArray,
+    tol_m2: float,
+    duals: Array,
+    max_rounds: int = CERTIFY_ROUNDS,
+    work: Array | None = None,
 ) -> bool:
     """:func:`certify_assignment` for one team, in its dual form: the robot's proof.
 
@@ -132,7 +137,8 @@ def certify_team(
     permutation (not checked); ``duals`` (n,) one potential per *slot* (m^2),
     kept by the caller from step to step and updated in place (zeros at first).
     True proves that no assignment costs less than ``sum_i cost[i, slots[i]] -
-    n * tol_m2`` (plus rounding, as above).
+    n * tol_m2`` (plus rounding, as above). ``work``: an (n, n) scratch array to
+    use instead of allocating one per round.
 
     The same Bellman-Ford proof as :func:`certify_assignment`, with the
     potential of robot k written as that of the slot it holds,
@@ -152,7 +158,8 @@ def certify_team(
     rows = np.arange(n)
     for _ in range(max(1, max_rounds)):
         u = cost[rows, slots] - duals[slots]  # (n,) the robots' potentials
-        lowest = (cost - u[:, None]).min(axis=0)  # (n,) per slot: min_i cost[i, j] - u[i]
+        reduced = np.subtract(cost, u[:, None], out=work)
+        lowest = reduced.min(axis=0)  # (n,) per slot: min_i cost[i, j] - u[i]
         if bool((lowest >= duals - tol_m2).all()):
             return True
         np.minimum(duals, lowest, out=duals)  # one relaxation; the check above is the proof

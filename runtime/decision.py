@@ -28,7 +28,14 @@ Two entry points run these steps:
     current poses of the live robots ordered by robot id. It keeps the state
     the steps need between calls -- the last three frames (the paper
     observation and velocity estimates need them), the previous assignment
-    (hysteresis), the centred pattern -- and builds only its own row.
+    (hysteresis) and its proof's potentials, the centred pattern -- and builds
+    only its own row. What it computes is what the shared functions give,
+    number for number (tests hold the two equal), with less work: from
+    :data:`PROOF_FROM` robots the previous assignment is proven still optimal
+    before the solver runs (:func:`runtime.assignment.certify_team`); the
+    general observation's neighbour order (one sort of the squared distances)
+    also gives the safety filter its nearest neighbours; velocities are
+    estimated only as one array operation.
 
 :func:`decide_batch`
     The evaluation path (the trainer's ``eval``, benchmarks): E teams at
@@ -256,6 +263,8 @@ class Controller:
         self._cc: Array = np.zeros((0, 2))
         self._ccx: Array = np.zeros(0)
         self._ccy: Array = np.zeros(0)
+        self._cost: Array = np.zeros((0, 0))  # (n, n) m^2, the assignment's cost
+        self._work: Array = np.zeros((0, 0))  # (n, n) scratch
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -337,13 +346,16 @@ class Controller:
         the rule would keep it whatever the solver said, so it is kept unsolved (as
         :func:`runtime.formation.assign_slots_env_last` does for the training world).
         """
-        dx = Pc[:, 0:1] - self._ccx  # (n, n): robot i to point j
+        n = len(Pc)
+        if self._cost.shape[0] != n:  # the team's buffers: no (n, n) allocation a step
+            self._cost, self._work = np.empty((n, n)), np.empty((n, n))
+        dx, dy = self._cost, self._work
+        np.subtract(Pc[:, 0:1], self._ccx, out=dx)  # (n, n): robot i to point j
         dx *= dx
-        dy = Pc[:, 1:2] - self._ccy
+        np.subtract(Pc[:, 1:2], self._ccy, out=dy)
         dy *= dy
         dx += dy
         prev = self._prev_slots
-        n = len(Pc)
         if prev is not None and len(prev) == n and n >= PROOF_FROM:
             if self._duals.shape[0] != n:
                 self._duals = np.zeros(n)
@@ -353,7 +365,7 @@ class Controller:
             else:
                 old = float(dx[np.arange(n), prev].sum())
                 tol = (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2) * (0.5 / n)
-                if certify_team(dx, prev, tol, self._duals):
+                if certify_team(dx, prev, tol, self._duals, work=dy):
                     return prev
                 self._proof_wait = PROOF_RETRY_STEPS
                 self._duals[:] = 0.0  # zeros: "every robot is nearest its own slot"
