@@ -10,10 +10,11 @@ import pytest
 from runtime import decision
 from runtime.assignment import certify_team
 from runtime.brain import RuleBrain
-from runtime.decision import Controller
+from runtime.decision import Controller, _near_in_order, decide_batch, neighbour_rows
 from runtime.formation import assign_centred, assign_slots, linear_sum_assignment
-from runtime.observation import frame_velocities, general_row
+from runtime.observation import frame_velocities, general_row, neighbour_order
 from runtime.patterns import make_pattern
+from runtime.safety import OrcaParams, nearest_in_range
 
 
 @pytest.mark.parametrize("n", [2, 7, 40, 100])
@@ -98,3 +99,52 @@ def test_team_proof_is_a_proof(n: int) -> None:
         else:
             assert mine > best  # within n + 1 rounds an optimal assignment is always proven
     assert proven > 0
+
+
+@pytest.mark.parametrize("n", [2, 7, 30, 100])
+def test_filter_neighbours_from_the_observation_order_are_the_filters_own(n: int) -> None:
+    """The robot reads the safety filter's neighbours off the observation's order:
+    the same tuples as nearest_in_range over every other robot, ties included."""
+    rng = np.random.default_rng(n)
+    for trial in range(20):
+        if trial % 2:  # a lattice: many equal distances, ties broken by dx, dy, index
+            P = rng.integers(0, 6, (n, 2)) * 0.3 + (rng.random((n, 2)) < 0.1) * 1e-9
+        else:
+            P = rng.normal(size=(n, 2)) * 1.5
+        L = P.tolist()
+        V = frame_velocities(L, (P - 0.01).tolist(), 0.1)
+        params = OrcaParams(max_neighbours=int(rng.integers(1, 12)))
+        for i in range(n):
+            order, d2 = neighbour_order(i, L, P)
+            got = _near_in_order(i, L, order, d2, params)
+            _, rel, _ = neighbour_rows(i, L, V)
+            want = nearest_in_range(rel, params)
+            assert [(a, b, c) for a, b, c, _ in got] == [(a, b, c) for a, b, c, _ in want]
+            others = [j for j in range(n) if j != i]
+            assert [j for *_, j in got] == [others[k] for *_, k in want]
+
+
+def test_controller_and_batch_agree_on_big_teams_with_the_filter() -> None:
+    """Above the numpy neighbour threshold and the proof's team size: the robot's
+    decisions are decide_batch's (rule brain, ORCA on)."""
+    rng = np.random.default_rng(8)
+    n = decision.PROOF_FROM + 6
+    C = make_pattern("circle", n)
+    pos = rng.uniform(0.0, 3.5, (n, 2))
+    ctrls = [Controller(RuleBrain()) for _ in range(n)]
+    prev_pos, prev_slots = pos, None
+    changed = 0
+    for t in range(12):
+        frames = np.stack([pos, prev_pos, prev_pos])[None]
+        vel, slots, ch = decide_batch(RuleBrain(), frames, C, prev_slots, OrcaParams())
+        for i in range(n):
+            d = ctrls[i].decide(i, pos, C, t)
+            assert d.slot == slots[0, i]
+            # the rule brain's one-row path takes math.hypot, its batch np.hypot:
+            # they may round the last bit differently, nothing else may differ
+            np.testing.assert_allclose(d.velocity, vel[0, i], rtol=1e-12, atol=1e-15)
+            assert d.safety_changed == ch[0, i]
+        changed += int(ch.sum())
+        prev_pos, prev_slots = pos, slots
+        pos = pos + 0.1 * vel[0]
+    assert changed > 0  # the filter acted
