@@ -5,7 +5,7 @@
 Measures, on this machine:
 
 1. **Decision latency** p50/p99 of one robot's decision (shared assignment +
-   observation + brain + ORCA safety filter) for N = 10, 20, 50 robots, with
+   observation + brain + ORCA safety filter) for N = 10, 20, 50, 100 robots, with
    ``rule:assign`` and with an ONNX MLP of the trainer's size (policy
    256-128-128 on the general observation: a brain from ``exports/`` if one
    with the general spec exists, else random weights built here with the
@@ -317,7 +317,7 @@ def main() -> int:
         onnx_brain = load_brain(str(brain_path))
         assert isinstance(onnx_brain, OnnxBrain)
         out["onnx_brain"] = brain_label
-        for n in (10, 20, 50):
+        for n in (10, 20, 50, 100):
             for name, brain in (("rule:assign", RuleBrain()), ("onnx mlp", onnx_brain)):
                 for safety in (OrcaParams(), None):
                     r = decision_latency(brain, n, samples, safety)

@@ -224,7 +224,8 @@ def decision_figures(brain: Brain, n: int, samples: int) -> dict[str, Any]:
             "quietest_round_p99_us": round(d["best_round_p99_us"], 1),
             "onnxruntime_us_p50": round(float(np.percentile(ort, 50)), 1),
             "onnxruntime_us_p99": round(float(np.percentile(ort, 99)), 1),
-            "ratio_p50": round(d["p50_us"] / float(np.percentile(ort, 50)), 2)}
+            "ratio_p50": round(d["p50_us"] / float(np.percentile(ort, 50)), 2),
+            "load_average_1min": round(os.getloadavg()[0], 2)}
 
 
 def main() -> int:
@@ -294,11 +295,11 @@ def main() -> int:
         return 0
     print("\none decision (Controller.decide, general brain, ORCA on) beside onnxruntime alone")
     print(f"{'N':>4} {'p50 us':>7} {'p99 us':>7} {'quiet p99':>9} {'ort p50':>7} "
-          f"{'ort p99':>7} {'p50 ratio':>9}")
+          f"{'ort p99':>7} {'p50 ratio':>9} {'load':>5}")
     for d in decisions:
         print(f"{d['n']:>4} {d['decision_us_p50']:>7} {d['decision_us_p99']:>7} "
               f"{d['quietest_round_p99_us']:>9} {d['onnxruntime_us_p50']:>7} "
-              f"{d['onnxruntime_us_p99']:>7} {d['ratio_p50']:>8}x")
+              f"{d['onnxruntime_us_p99']:>7} {d['ratio_p50']:>8}x {d['load_average_1min']:>5}")
     return 0
 
 

@@ -35,7 +35,8 @@ import numpy as np
 
 from runtime import keys
 from runtime.log import Log
-from runtime.messages import MessageError, Pose, decode_pose, decode_poses
+from runtime.messages import MessageError, Pose, decode_pose
+from runtime.pose_batch import decode_positions
 from runtime.types import Array
 
 __all__ = ["MAX_COORD_M", "PoseInbox", "Step"]
@@ -50,7 +51,7 @@ class Step:
     step: int
     ids: list[int]
     positions: Array
-    """(len(ids), 2) metres, rows in the order of ``ids``."""
+    """(len(ids), 2) metres, rows in the order of ``ids`` (may be a read-only view)."""
 
 
 class PoseInbox:
@@ -141,28 +142,22 @@ class PoseInbox:
 
     def take_batch(self, payload: bytes) -> None:
         """An all-poses sample: kept as the step to decide, or dropped (counted) when malformed."""
-        try:
-            b = decode_poses(payload)
+        try:  # only what the robot uses: step, ids, positions (the same checks)
+            s, ids, xy = decode_positions(payload, MAX_COORD_M)
         except MessageError as e:
             self._drop("poses", str(e))
             return
-        n = b.robot_ids.shape[0]
-        if n and float(abs(b.xy).max()) > MAX_COORD_M:
-            self._drop("poses", f"a position beyond {MAX_COORD_M:g} m")
-            return
-        ids: list[int] = b.robot_ids.tolist()
         mine = self.id in ids
         now = time.monotonic()
         with self.cond:
             self._last_pose_t = now
             self.batches += 1
-            s = b.step
             if s <= self._batch_step:
                 if not (mine and s < self._batch_step):
                     return  # a duplicate or out of order: the newer one is kept
                 self._restart = True  # our own step went back: the world restarted
             self._batch_step = s
-            self._batch = Step(s, ids, b.xy) if mine else None
+            self._batch = Step(s, ids, xy) if mine else None
             if mine:
                 self.cond.notify()
 

@@ -263,6 +263,40 @@ def frame_velocities(L: list[list[float]], Lp: list[list[float]], dt: float) -> 
     return [[(a[0] - b[0]) / dt, (a[1] - b[1]) / dt] for a, b in zip(L, Lp, strict=True)]
 
 
+def neighbour_order(
+    i: int, L: list[list[float]], P: Array | None = None
+) -> tuple[list[int], list[float]]:
+    """Robot i's team nearest first, and every robot's squared distance to it.
+
+    ``L``: positions at t in robot-id order, [[x, y], ...] (m). Returns (robot
+    ids sorted by squared distance, ties by id, with i itself last; ``d2`` with
+    ``d2[j] = |p_j - p_i|^2`` (m^2) and ``d2[i] = inf``), plain Python values.
+    ``P``: the same positions as an (n, 2) array, if the caller has it: above
+    :data:`NUMPY_NEIGHBOURS_FROM` robots the distances are then found with numpy
+    (the same subtractions, squares and sums, a stable sort: the same order).
+    """
+    n = len(L)
+    px, py = L[i]
+    if P is not None and n >= NUMPY_NEIGHBOURS_FROM:
+        rx = P[:, 0] - px
+        ry = P[:, 1] - py
+        rx *= rx
+        ry *= ry
+        rx += ry
+        rx[i] = math.inf
+        order: list[int] = np.argsort(rx, kind="stable").tolist()
+        d2: list[float] = rx.tolist()
+        return order, d2
+    d2 = []
+    for q in L:
+        x = q[0] - px
+        y = q[1] - py
+        d2.append(x * x + y * y)
+    d2[i] = math.inf
+    # nearest first, ties by index: a stable sort of the ids by distance
+    return sorted(range(n), key=d2.__getitem__), d2
+
+
 def general_row(
     i: int,
     L: list[list[float]],
@@ -271,18 +305,20 @@ def general_row(
     k: int,
     world: WorldConfig = DEFAULT_WORLD,
     P: Array | None = None,
+    order: list[int] | None = None,
 ) -> list[float]:
     """Robot i's general observation, 6 + 5k plain floats: the one-robot kernel.
 
     ``L``: positions at t, ``V``: :func:`frame_velocities`, both in robot-id
-    order; ``slot``: robot i's slot in world coordinates (m). What
-    :func:`general_observation` builds for a single robot of a single team, and
-    what the robot calls with the lists it keeps anyway: at n ~ 10 a dozen
-    numpy calls cost more than the arithmetic. The same IEEE operations, in
-    the same order, as the batch code (tests hold every row of the two equal).
-    ``P``: the same positions as an (n, 2) array, if the caller has it: above
-    :data:`NUMPY_NEIGHBOURS_FROM` robots the k nearest are then found with numpy
-    (the same squares and sums, a stable sort: the same neighbours, ties by index).
+    order (``V`` needs only the rows of i and of its k nearest: any sequence
+    indexable by robot id); ``slot``: robot i's slot in world coordinates (m).
+    What :func:`general_observation` builds for a single robot of a single team,
+    and what the robot calls with the lists it keeps anyway: at n ~ 10 a dozen
+    numpy calls cost more than the arithmetic. The same IEEE operations, in the
+    same order, as the batch code (tests hold every row of the two equal).
+    ``P``: the same positions as an (n, 2) array, for :func:`neighbour_order`;
+    ``order``: that order, if the caller has it already (the robot's safety
+    filter reads the same one).
     """
     n = len(L)
     px, py = L[i]
@@ -293,22 +329,13 @@ def general_row(
     vix, viy = V[i]
     out = [svx, svy, svx / d, svy / d, vix, viy]
     m = min(k, n - 1)
-    if m > 0 and P is not None and n >= NUMPY_NEIGHBOURS_FROM:
-        rx = P[:, 0] - px
-        ry = P[:, 1] - py
-        d2a = rx * rx + ry * ry
-        d2a[i] = math.inf
-        for j in np.argsort(d2a, kind="stable")[:m].tolist():
+    if m > 0:
+        if order is None:
+            order = neighbour_order(i, L, P)[0]
+        for j in order[:m]:
+            q = L[j]
             v = V[j]
-            out += (L[j][0] - px, L[j][1] - py, v[0] - vix, v[1] - viy, 1.0)
-    elif m > 0:
-        rel = [(q[0] - px, q[1] - py) for q in L]
-        d2 = [x * x + y * y for x, y in rel]
-        d2[i] = math.inf
-        # nearest first, ties by index: a stable sort of the ids by distance
-        for j in sorted(range(n), key=d2.__getitem__)[:m]:
-            v = V[j]
-            out += (*rel[j], v[0] - vix, v[1] - viy, 1.0)
+            out += (q[0] - px, q[1] - py, v[0] - vix, v[1] - viy, 1.0)
     if m < k:
         out += [0.0] * (GENERAL_PER_NEIGHBOUR * (k - m))
     return out

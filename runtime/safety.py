@@ -68,8 +68,10 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 __all__ = [
     "FilterResult",
     "OrcaParams",
+    "nearest_in_range",
     "orca_filter",
     "orca_filter_batch",
+    "orca_velocity",
 ]
 
 _EPS = 1e-5  # RVO_EPSILON: parallel-line test in the linear programs
@@ -80,6 +82,9 @@ Rows = Sequence[Sequence[float]] | npt.NDArray[np.floating]
 # An ORCA line: point (px, py) on it and unit direction (dx, dy); the allowed
 # half-plane lies to the left of the direction.
 _Line = tuple[float, float, float, float]
+# A neighbour the filter considers: squared distance (m^2), position relative to
+# the robot (m), and its index among the robot's neighbours.
+_Near = tuple[float, float, float, int]
 
 
 @dataclass(frozen=True)
@@ -253,33 +258,37 @@ def _as_rows(a: Rows) -> list[list[float]]:
     return [[float(r[0]), float(r[1])] for r in a]
 
 
-def _orca_lines(
-    vx: float,
-    vy: float,
-    rel_pos: list[list[float]],
-    nb_vel: list[list[float]],
-    world: WorldConfig,
-    params: OrcaParams,
-) -> list[_Line]:
-    """ORCA half-planes for the nearest neighbours in range, nearest first."""
+def nearest_in_range(rel_pos: list[list[float]], params: OrcaParams) -> list[_Near]:
+    """The neighbours the filter considers: (d^2, dx, dy, index) of the nearest
+    ``max_neighbours`` rows of ``rel_pos`` closer than ``neighbour_dist_m``, nearest
+    first (ties by dx, dy, then index)."""
     range_sq = params.neighbour_dist_m * params.neighbour_dist_m
-    near: list[tuple[float, float, float, int]] = []
+    near: list[_Near] = []
     for idx, (rpx, rpy) in enumerate(rel_pos):
         d2 = rpx * rpx + rpy * rpy
         if d2 < range_sq:  # False for NaN
             near.append((d2, rpx, rpy, idx))
-    if not near:
-        return []
     near.sort()
     del near[params.max_neighbours :]
+    return near
 
+
+def _orca_lines(
+    vx: float,
+    vy: float,
+    near: list[_Near],
+    nb_vel: Sequence[Sequence[float]],
+    world: WorldConfig,
+    params: OrcaParams,
+) -> list[_Line]:
+    """ORCA half-planes for the neighbours ``near`` (:func:`nearest_in_range`), in
+    their order; ``nb_vel[k]`` is the absolute velocity of ``near[k]``."""
     combined = 2.0 * (world.radius_m + params.radius_margin_m)
     combined_sq = combined * combined
     inv_tau = 1.0 / params.time_horizon_s
     inv_dt = 1.0 / world.dt_s
     lines: list[_Line] = []
-    for dist_sq, rpx, rpy, idx in near:
-        nvx, nvy = nb_vel[idx]
+    for (dist_sq, rpx, rpy, _), (nvx, nvy) in zip(near, nb_vel, strict=True):
         if not (math.isfinite(nvx) and math.isfinite(nvy)):
             nvx = nvy = 0.0
         rvx, rvy = vx - nvx, vy - nvy  # own velocity relative to the neighbour
@@ -339,32 +348,55 @@ def _solve(
     pref_y: float,
     vx: float,
     vy: float,
-    rel_pos: list[list[float]],
-    nb_vel: list[list[float]],
+    near: list[_Near],
+    nb_vel: Sequence[Sequence[float]],
     world: WorldConfig,
     params: OrcaParams,
 ) -> tuple[float, float]:
     """Safe velocity for finite inputs, norm <= v_max."""
     v_max = world.v_max_mps
-    lines = _orca_lines(vx, vy, rel_pos, nb_vel, world, params)
-    if lines:
-        # Keep right: if the (speed-limited) preferred velocity violates a
-        # constraint, steer the optimum slightly clockwise.
-        n2 = pref_x * pref_x + pref_y * pref_y
-        cx, cy = pref_x, pref_y
-        if n2 > v_max * v_max:
-            s = v_max / math.sqrt(n2)
-            cx, cy = cx * s, cy * s
-        if params.keep_right_rad != 0.0 and any(
-            dx * (py - cy) - dy * (px - cx) > 0.0 for px, py, dx, dy in lines
-        ):
-            c, s = math.cos(params.keep_right_rad), math.sin(params.keep_right_rad)
-            pref_x, pref_y = c * pref_x + s * pref_y, -s * pref_x + c * pref_y
-        rx, ry = _lp(lines, v_max, pref_x, pref_y)
-    else:
-        rx, ry = pref_x, pref_y
+    if not near:
+        return clamp_speed(pref_x, pref_y, v_max)
+    lines = _orca_lines(vx, vy, near, nb_vel, world, params)
+    # Keep right: if the (speed-limited) preferred velocity violates a
+    # constraint, steer the optimum slightly clockwise.
+    n2 = pref_x * pref_x + pref_y * pref_y
+    cx, cy = pref_x, pref_y
+    if n2 > v_max * v_max:
+        s = v_max / math.sqrt(n2)
+        cx, cy = cx * s, cy * s
+    if params.keep_right_rad != 0.0:
+        for px, py, dx, dy in lines:
+            if dx * (py - cy) - dy * (px - cx) > 0.0:
+                c, s = math.cos(params.keep_right_rad), math.sin(params.keep_right_rad)
+                pref_x, pref_y = c * pref_x + s * pref_y, -s * pref_x + c * pref_y
+                break
+    rx, ry = _lp(lines, v_max, pref_x, pref_y)
     # The LP stays in the max-speed circle up to rounding; make it exact.
     return clamp_speed(rx, ry, v_max)
+
+
+def orca_velocity(
+    pref_x: float,
+    pref_y: float,
+    own_x: float,
+    own_y: float,
+    near: list[_Near],
+    nb_vel: Sequence[Sequence[float]],
+    world: WorldConfig = DEFAULT_WORLD,
+    params: OrcaParams = OrcaParams(),  # frozen dataclass: a safe default
+) -> tuple[float, float, bool, float]:
+    """:func:`orca_filter` for finite velocities and neighbours already chosen: the
+    robot's path, with nothing converted or allocated beyond the lines.
+
+    ``near``: what :func:`nearest_in_range` gives for the robot's neighbours (or
+    the same list built another way); ``nb_vel[k]``: ``near[k]``'s absolute
+    velocity (m/s). Returns (vx, vy, changed, change_mps) as
+    :class:`FilterResult`'s fields.
+    """
+    rx, ry = _solve(pref_x, pref_y, own_x, own_y, near, nb_vel, world, params)
+    change = math.hypot(rx - pref_x, ry - pref_y)
+    return rx, ry, change > _CHANGE_TOL_MPS, change
 
 
 def orca_filter(
@@ -397,7 +429,9 @@ def orca_filter(
     """
     px, py, pref_ok = _finite2(pref_vel)
     vx, vy, _ = _finite2(own_vel)
-    rx, ry = _solve(px, py, vx, vy, _as_rows(rel_pos), _as_rows(nb_vel), world, params)
+    near = nearest_in_range(_as_rows(rel_pos), params)
+    vel = _as_rows(nb_vel)
+    rx, ry = _solve(px, py, vx, vy, near, [vel[k[3]] for k in near], world, params)
     change = math.hypot(rx - px, ry - py)
     return FilterResult(
         velocity=(rx, ry),

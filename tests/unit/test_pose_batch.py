@@ -25,6 +25,7 @@ from runtime.messages import (
     decode_poses,
     encode_poses,
 )
+from runtime.pose_batch import decode_positions
 from sim_bridge.log_reader import read_log
 from sim_bridge.recorder import Recorder
 
@@ -53,6 +54,36 @@ def test_round_trip(step: int, ids: list[int], data: st.DataObject) -> None:
     raw = encode_poses(msg)
     assert len(raw) == 22 + 36 * n
     assert decode_poses(raw) == msg and m.decode(raw) == msg and m.encode(msg) == raw
+    got_step, got_ids, got_xy = decode_positions(raw, 1e6)  # the robot's reader: the same
+    assert (got_step, got_ids) == (step, ids) and np.array_equal(got_xy, msg.xy)
+    assert got_xy.shape == (n, 2)
+
+
+def test_robot_reader_refuses_what_the_decoder_refuses_and_far_positions() -> None:
+    head = struct.Struct("<BBQdI")
+    good = encode_poses(batch(1, [0, 1]))
+    bad: list[bytes] = [head.pack(Tag.POSES, m.VERSION, 1, 0.1, 2**32 - 1),
+                        head.pack(Tag.POSES, m.VERSION, 1, 0.1, 3) + bytes(36),
+                        good + b"\0", b"\x01" + good[1:]]
+    for offset, value in [(4, float("nan")), (12, float("-inf")), (20, float("nan")),
+                          (36 + 28, float("inf"))]:  # x, y, vx of robot 0, vy of robot 1
+        broken = bytearray(good)
+        broken[22 + offset: 22 + offset + 8] = struct.pack("<d", value)
+        bad.append(bytes(broken))
+    twice = bytearray(good)
+    twice[22 + 36: 22 + 40] = struct.pack("<I", 0)
+    bad.append(bytes(twice))
+    for raw in bad:
+        with pytest.raises(MessageError) as full:
+            decode_poses(raw)
+        with pytest.raises(MessageError) as lean:
+            decode_positions(raw, 1e6)
+        assert str(lean.value) == str(full.value)
+    far = encode_poses(batch(1, [0, 1], [[0.0, 0.0], [0.0, -2e6]]))
+    decode_poses(far)  # a valid message ...
+    with pytest.raises(MessageError, match="beyond"):  # ... that a robot does not take
+        decode_positions(far, 1e6)
+    assert decode_positions(encode_poses(batch(3, [])), 1e6)[:2] == (3, [])
 
 
 def test_refused_before_allocation_and_by_value() -> None:
