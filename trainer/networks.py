@@ -2,7 +2,8 @@
 
 ::
 
-    raw obs o --normaliser--> o' --encoder I_mu--> e --policy pi_theta--> mean, std   (action)
+    raw obs o [--front end (paper brains, trainer.front_end)--> f]
+              --normaliser--> o' --encoder I_mu--> e --policy pi_theta--> mean, std   (action)
                                \\--decoder (training only: reconstruction loss)
                                                   e --value V_phi--> V(e)
 
@@ -159,7 +160,8 @@ class Agent(nn.Module):
         if cfg.front != "none":
             self.front = RankFrontEnd(cfg.n_robots, dt_s, v_max_mps * dt_s, mode=cfg.front)
             if obs_dim != 6 * (cfg.n_robots - 1):
-                raise ValueError(f"the rank front end reads the paper observation, not {obs_dim}")
+                raise ValueError(f"the {cfg.front} front end reads the paper observation "
+                                 f"({6 * (cfg.n_robots - 1)} numbers), not {obs_dim}")
             obs_dim = self.front.out_dim
         self.normaliser = ObsNormaliser(obs_dim)
         self.encoder: nn.Module
@@ -199,12 +201,6 @@ class Agent(nn.Module):
         The rollout memory stores this (the front end has no weights, so it is computed once
         per sample, not again in every update)."""
         return int(self.normaliser.shift.numel())
-
-    def update_normaliser(self, obs: torch.Tensor) -> None:
-        """Fold raw observations (..., obs_dim) into the normaliser's statistics."""
-        with torch.no_grad():
-            raw = torch.as_tensor(obs).reshape(-1, self.obs_dim)
-            self.normaliser.update(self.front_features(raw))
 
     def features(self, obs: torch.Tensor, team_rows: int = 0) -> torch.Tensor:
         """e = I_mu(normalise(front(o))) for raw observations (B, obs_dim)."""

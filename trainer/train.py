@@ -327,8 +327,9 @@ def train(
     set_determinism(cfg)
     for p in plan.patterns:  # a bad pattern fails now, with its one-line message
         check_pattern(p, cfg.n_robots, plan.world)
-        if cfg.front == "slots" and p == "random":
-            raise InputError("a brain with the slots front end is for one pattern, not 'random'")
+        if cfg.front in ("slots", "transport") and p == "random":
+            raise InputError(f"a brain with the {cfg.front} front end carries one pattern; "
+                             "train it on a named pattern or a points file, not 'random'")
     st = start_state(cfg, obs_spec_for(cfg), plan.world.v_max_mps, ck, plan.init)
     total_eps = plan.episodes * (len(plan.patterns) - st.stage0) if plan.episodes else None
     run = _Run(cfg, plan, artefact_paths(plan.out), time.perf_counter() - st.wall0_s,

@@ -96,7 +96,7 @@ def test_front_end_reads_centroid_rank_and_neighbours_from_the_paper_observation
 def test_exported_brain_with_the_front_end_equals_the_agent_and_reads_back(tmp_path: Path) -> None:
     _, obs = world_obs(5)
     agent = Agent(SPEC.dim, CFG, 1.0)
-    agent.update_normaliser(torch.from_numpy(obs))
+    agent.normaliser.update(agent.front_features(torch.from_numpy(obs.reshape(-1, SPEC.dim))))
     with torch.no_grad():
         for p in agent.policy.mean_head.parameters():
             p.normal_(0.0, 0.3, generator=torch.Generator().manual_seed(0))
@@ -138,7 +138,7 @@ def test_slots_front_end_points_each_robot_at_its_rank_slot(tmp_path: Path) -> N
     assert np.allclose(f[..., 0:2], want, atol=1e-5)
     step = want / np.maximum(np.linalg.norm(want, axis=-1, keepdims=True), 0.1)
     assert np.allclose(f[..., 2:4], step, atol=1e-5)
-    agent.update_normaliser(torch.from_numpy(obs))
+    agent.normaliser.update(agent.front_features(torch.from_numpy(obs.reshape(-1, SPEC.dim))))
     model = build_onnx(agent)
     got = ort.InferenceSession(model.SerializeToString()).run(["action"], {"obs": x})[0]
     assert np.allclose(got, agent.act_mps(torch.from_numpy(x)).detach().numpy(), atol=1e-5)
@@ -201,7 +201,7 @@ def test_transport_brain_exports_and_reads_back(tmp_path: Path) -> None:
     agent = Agent(SPEC.dim, cfg, 1.0)
     assert agent.front is not None
     agent.front.set_pattern(make_pattern("triangle", N))
-    agent.update_normaliser(torch.from_numpy(obs))
+    agent.normaliser.update(agent.front_features(torch.from_numpy(obs.reshape(-1, SPEC.dim))))
     x = obs.reshape(6 * N, -1)
     model = build_onnx(agent)
     got = ort.InferenceSession(model.SerializeToString()).run(["action"], {"obs": x})[0]
