@@ -58,3 +58,12 @@ def test_a_pattern_sequence_gives_the_brain_each_stage_s_pattern(tmp_path: Path)
     line = line - line.mean(axis=0)
     got = sorted(tuple(round(float(v), 4) for v in p) for p in front.slots.numpy())
     assert got == sorted(tuple(round(float(v), 4) for v in p) for p in line)
+
+
+def test_a_brain_that_carries_its_pattern_refuses_random_shapes(tmp_path: Path) -> None:
+    from runtime.errors import InputError
+
+    plan = RunPlan(patterns=["random"], out=tmp_path / "r.onnx", episodes=4, progress=False,
+                   write_files=False, world=SMALL_WORLD)
+    with pytest.raises(InputError, match="carries one pattern"):
+        train(SMALL.with_(front_end="transport"), plan)
