@@ -65,7 +65,14 @@ from runtime.formation import (
     linear_sum_assignment,
     slot_positions,
 )
-from runtime.observation import frame_velocities, general_row, neighbour_order, observe
+from runtime.observation import (
+    frame_velocities,
+    general_row,
+    neighbour_order,
+    observe,
+    plan_pace,
+)
+from runtime.rules import plan_targets
 from runtime.safety import OrcaParams, clamp_speed, nearest_in_range, orca_velocity
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -76,6 +83,7 @@ __all__ = [
     "Decision",
     "brain_velocities",
     "command",
+    "commands",
     "decide_batch",
     "frame_velocities",
     "neighbour_rows",
@@ -423,16 +431,27 @@ class Controller:
             slot = int(slots[i])
             team = getattr(brain, "team_velocities", None)
             L = self._L
-            V = self._velocities() if spec.name == "general" or team is not None else []
+            rows = spec.needs_slots  # the general layout: general or plan
+            V = self._velocities() if rows or team is not None else []
             near = None  # the safety filter's neighbours, when the observation found them
             # 2. observe (own row): the general builder's one-robot kernel on plain
             # floats, its neighbour order shared with the safety filter; else the builder
             obs: Array | None = None  # a team rule plans from the poses (step 3)
-            if team is None and spec.name == "general":
-                sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
+            if team is None and rows:
+                steps_left = 0.0
+                if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
+                    c = np.asarray(self._pattern_obj, dtype=np.float64)
+                    tg, k = plan_targets(pos[None], c[None], slots[None], spec.travel_weight,
+                                         self.world)
+                    sx, sy = tg[0, i].tolist()
+                    steps_left = float(k[0])
+                else:
+                    sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
                 order, d2 = neighbour_order(i, L, pos)
                 row = general_row(i, L, V, (sx, sy), spec.k_neighbours, self.world, order=order)
                 obs = np.array([row])
+                if steps_left:
+                    plan_pace(obs, steps_left, self.world)
                 if safety is not None:
                     near = _near_in_order(i, L, order, d2, safety)
             elif team is None:
@@ -499,11 +518,36 @@ def decide_batch(
         act: Rows = np.asarray(team(pos, C, slots), dtype=np.float64).reshape(E * n, 2).tolist()
     else:
         # 2. observe (every row)
-        target = slot_positions(pos, C, slots) if spec.needs_slots else None
-        obs = observe(spec, f, target, None, world)
+        target, steps_left = None, None
+        if spec.name == "plan":
+            target, steps_left = plan_targets(pos, C, slots, spec.travel_weight, world)
+        elif spec.needs_slots:
+            target = slot_positions(pos, C, slots)
+        obs = observe(spec, f, target, None, world, steps_left)
         # 3. act
         act = brain_velocities(brain, obs.reshape(E * n, spec.dim))
     # 4. command, robot by robot
+    vel, changed = commands(act, pos, prev, safety, world)
+    return vel, slots, changed
+
+
+def commands(
+    act: Rows | Array,
+    pos: Array,
+    prev: Array,
+    safety: OrcaParams | None,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> tuple[Array, BoolArray]:
+    """Step 4 for E teams: every robot's :func:`command` from its own view.
+
+    ``act``: the brain's velocities, (E * n) rows of [vx, vy] or an (E, n, 2)
+    array (m/s); ``pos``, ``prev``: (E, n, 2) positions at t and t-1. Returns
+    (velocities (E, n, 2) m/s, safety_changed (E, n)). The training world calls
+    it too (``TrainConfig.train_safety``), so a brain trains behind the filter
+    the robots run.
+    """
+    E, n, _ = pos.shape
+    rows: Rows = act.reshape(E * n, 2).tolist() if isinstance(act, np.ndarray) else act
     vel = np.zeros((E, n, 2))
     changed = np.zeros((E, n), dtype=bool)
     filtering = safety is not None and n >= 2
@@ -511,9 +555,9 @@ def decide_batch(
         L: Rows = pos[e].tolist()
         V = frame_velocities(L, prev[e].tolist(), world.dt_s) if filtering else []
         for i in range(n):
-            bvx, bvy = act[e * n + i]
+            bvx, bvy = rows[e * n + i]
             cmd = command(bvx, bvy, neighbour_rows(i, L, V) if filtering else None, safety, world)
             if cmd is not None:
                 vel[e, i] = cmd.velocity
                 changed[e, i] = cmd.changed
-    return vel, slots, changed
+    return vel, changed

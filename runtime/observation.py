@@ -25,6 +25,18 @@ Two specs, each a pure numpy function over a batch (leading axes free):
            velocity (m/s), 1 if present. Padded with zeros when fewer than k.
     ====== ============================================================
 
+``plan`` (version 1, any n, any pattern) -- the general layout in a fixed frame
+    The same rows as ``general`` but for two things. The slot (columns 0:2) is
+    the robot's slot in the synchronised plan's frame (:func:`runtime.rules.
+    plan_targets`: the pattern placed by the ``travel_weight`` blend of the
+    fewest-steps frame and the team's centroid, a frame that does not drift as
+    the team moves), and columns 2:4 hold that plan's step in units of v_max:
+    ``slot vector / (K v_max dt)`` with K the steps left to the team's farthest
+    robot (:func:`plan_pace`). ``v_max * columns 2:4`` is ``rule:frame``'s
+    velocity (norm <= v_max): every robot lands on its slot at the same step,
+    exactly, when it is followed. A brain acts relative to it
+    (``TrainConfig.residual``), so it starts at the rule and lands exactly.
+
 Velocities are estimated from consecutive frames, as a robot's own sensing
 would do; nothing here needs a message beyond positions.
 """
@@ -44,7 +56,9 @@ from runtime.errors import InputError
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-OBS_NAMES = ("paper", "general")
+OBS_NAMES = ("paper", "general", "plan")
+SLOT_ROWS = ("general", "plan")
+"""The specs built from the shared slot assignment (the general layout)."""
 Rows = Sequence[int] | IntArray
 """Which robots' rows a builder makes: indices into the team's robot axis."""
 PAPER_FRAMES = 3
@@ -63,17 +77,22 @@ class ObservationSpec:
     name: str
     version: int = 1
     n_robots: int = 0  # paper: the fixed team size; general: 0 (any)
-    k_neighbours: int = 6  # general only
+    k_neighbours: int = 6  # general and plan
+    travel_weight: float = 0.0  # plan only: 0 the frame of fewest steps, 1 the centroid's
 
     def __post_init__(self) -> None:
         if self.name not in OBS_NAMES:
-            raise ObservationError(f"unknown observation '{self.name}' (known: paper, general)")
+            raise ObservationError(
+                f"unknown observation '{self.name}' (known: {', '.join(OBS_NAMES)})"
+            )
         if self.version != 1:
             raise ObservationError(f"observation '{self.name}' version {self.version} unsupported")
         if self.name == "paper" and self.n_robots < 2:
             raise ObservationError("the paper observation needs n_robots >= 2")
-        if self.name == "general" and self.k_neighbours < 1:
-            raise ObservationError("the general observation needs k_neighbours >= 1")
+        if self.name in SLOT_ROWS and self.k_neighbours < 1:
+            raise ObservationError(f"the {self.name} observation needs k_neighbours >= 1")
+        if not (math.isfinite(self.travel_weight) and 0.0 <= self.travel_weight <= 1.0):
+            raise ObservationError(f"travel_weight must be in [0, 1], got {self.travel_weight}")
 
     @property
     def dim(self) -> int:
@@ -85,11 +104,11 @@ class ObservationSpec:
     @property
     def needs_slots(self) -> bool:
         """Whether the builder needs the shared slot assignment."""
-        return self.name == "general"
+        return self.name in SLOT_ROWS
 
     def accepts_team(self, n: int) -> bool:
         """Whether a brain with this spec can drive a team of n robots."""
-        return self.name == "general" or n == self.n_robots
+        return self.name in SLOT_ROWS or n == self.n_robots
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"name": self.name, "version": self.version}
@@ -97,6 +116,8 @@ class ObservationSpec:
             d["n_robots"] = self.n_robots
         else:
             d["k_neighbours"] = self.k_neighbours
+        if self.name == "plan":
+            d["travel_weight"] = self.travel_weight
         return d
 
     @staticmethod
@@ -107,6 +128,7 @@ class ObservationSpec:
                 version=int(d.get("version", 1)),
                 n_robots=int(d.get("n_robots", 0)),
                 k_neighbours=int(d.get("k_neighbours", 6)),
+                travel_weight=float(d.get("travel_weight", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise ObservationError(f"bad observation spec {d!r}: {e}") from None
@@ -350,24 +372,45 @@ def observe(
     slot_pos: Array | None,
     robots: Rows | None = None,
     world: WorldConfig = DEFAULT_WORLD,
+    steps_left: Array | float | None = None,
 ) -> Array:
     """The observation ``spec`` names, for every robot or the selected ``robots``.
 
     The one entry point the robot, ``eval`` and the training world share.
     ``frames``: (..., 3, n, 2) positions at t, t-1, t-2 (or, for one team,
     a sequence of the three (n, 2) arrays). ``slot_pos``: (..., r, 2)
-    the selected robots' slots in world coordinates (the general spec only;
-    None for the paper's). Returns (..., r, spec.dim) float64.
+    the selected robots' slots in world coordinates (the general and plan specs;
+    None for the paper's; the plan's: :func:`runtime.rules.plan_targets`).
+    ``steps_left``: the plan spec's K per team (...), from the same function.
+    Returns (..., r, spec.dim) float64.
     """
     if spec.name == "paper":
         return paper_observation(np.asarray(frames), robots)
     if slot_pos is None:
-        raise ObservationError("the general observation needs the robots' slots")
+        raise ObservationError(f"the {spec.name} observation needs the robots' slots")
     if isinstance(frames, np.ndarray) and frames.ndim > 3:
         now, before = frames[..., 0, :, :], frames[..., 1, :, :]
     else:  # one team: (3, n, 2), or the robot's three frames as a sequence
         now, before = frames[0], frames[1]
-    return general_observation(now, before, slot_pos, spec.k_neighbours, world, robots)
+    out = general_observation(now, before, slot_pos, spec.k_neighbours, world, robots)
+    if spec.name == "plan":
+        if steps_left is None:
+            raise ObservationError("the plan observation needs the plan's steps left")
+        plan_pace(out, steps_left, world)
+    return out
+
+
+def plan_pace(obs: NDArray[Any], steps_left: Array | float, world: WorldConfig = DEFAULT_WORLD
+              ) -> NDArray[Any]:
+    """Turn general rows built on the plan's slots into plan rows, in place.
+
+    ``obs`` (..., r, 6 + 5k) whose columns 0:2 are the slot vectors in the plan's
+    frame; ``steps_left`` (...) or a number: K per team. Columns 2:4 become
+    ``slot vector / (K v_max dt)``. Returns ``obs``.
+    """
+    den = np.asarray(steps_left, dtype=np.float64) * (world.v_max_mps * world.dt_s)
+    obs[..., 2:4] = obs[..., 0:2] / np.asarray(den)[..., None, None]
+    return obs
 
 
 def neighbours_from_general(

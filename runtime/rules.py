@@ -56,7 +56,7 @@ from runtime.observation import ObservationSpec
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["FRAME_RULES", "FrameRule", "frame_plan", "straight_to_slot"]
+__all__ = ["FRAME_RULES", "FrameRule", "frame_plan", "plan_targets", "straight_to_slot"]
 
 _STEP_TOL: Final = 1e-9
 """Relative slack in ``ceil(distance / reach)``: a distance that is a whole number
@@ -82,19 +82,20 @@ def straight_to_slot(obs: NDArray[Any], world: WorldConfig = DEFAULT_WORLD) -> A
     return out
 
 
-def frame_plan(
+def plan_targets(
     pos: Array,
     pattern: Array,
     slots: IntArray,
     travel_weight: float,
     world: WorldConfig = DEFAULT_WORLD,
-) -> Array:
-    """Every robot's velocity under the synchronised plan in the blended frame.
+) -> tuple[Array, Array]:
+    """Every robot's slot in the blended frame, and the steps the plan has left.
 
     ``pos`` (E, n, 2) positions (m), ``pattern`` (E, n, 2) the pattern (any
     translation), ``slots`` (E, n) the shared assignment, ``travel_weight`` in
-    [0, 1] (see the module docstring). Returns (E, n, 2) m/s, each of norm
-    <= v_max; all robots of a team land on their slots at the same step.
+    [0, 1] (see the module docstring). Returns (targets (E, n, 2) m: the slot
+    points of the pattern translated by the frame ``t``; steps_left (E,): ``K``,
+    the whole steps the farthest robot needs at v_max, at least 1).
     """
     p = np.asarray(pos, dtype=np.float64)
     target = np.take_along_axis(np.asarray(pattern, dtype=np.float64), slots[..., None], axis=-2)
@@ -105,11 +106,28 @@ def frame_plan(
         for e in range(E):  # Welzl's circle is a Python loop: one call per team
             c, _ = _min_enclosing_circle(d[e])
             t[e] = c + travel_weight * (t[e] - c)
-    s = t[:, None, :] - d  # slot vector (m)
+    target += t[:, None, :]
+    s = target - p  # slot vector (m)
     dist = np.hypot(s[..., 0], s[..., 1])
     reach = world.v_max_mps * world.dt_s
     k = np.maximum(np.ceil(dist.max(axis=1) / reach - _STEP_TOL), 1.0)  # (E,) steps left
-    out: Array = s / (k * world.dt_s)[:, None, None]
+    return target, k
+
+
+def frame_plan(
+    pos: Array,
+    pattern: Array,
+    slots: IntArray,
+    travel_weight: float,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> Array:
+    """Every robot's velocity under the synchronised plan in the blended frame.
+
+    Arguments as :func:`plan_targets`. Returns (E, n, 2) m/s, each of norm
+    <= v_max; all robots of a team land on their slots at the same step.
+    """
+    target, k = plan_targets(pos, pattern, slots, travel_weight, world)
+    out: Array = (target - np.asarray(pos, dtype=np.float64)) / (k * world.dt_s)[:, None, None]
     return out
 
 

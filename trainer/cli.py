@@ -62,7 +62,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     # line overrides --config (precedence: defaults < --config < options < --set).
     p.add_argument("--robots", type=int, help=f"team size (default {d.n_robots})")
     p.add_argument("--algo", choices=ALGOS, help=f"default {d.algo}")
-    p.add_argument("--obs", choices=("paper", "general"), help=f"default {d.obs}")
+    p.add_argument("--obs", choices=("paper", "general", "plan"),
+                   help=f"the brain's observation: paper (the paper's, fixed n), general (slot "
+                        f"vector and neighbours, any n) or plan (the general layout in the "
+                        f"synchronised plan's frame); default {d.obs}")
     p.add_argument("--seed", type=int, help=f"default {d.seed}")
     p.add_argument("--out", type=Path, help="the brain to write (.onnx); required to train")
     stop = p.add_argument_group("stopping (per pattern; the first reached wins)")

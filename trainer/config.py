@@ -53,12 +53,21 @@ class TrainConfig:
     algo: str = "pattern-rl"
     """``pattern-rl`` (auto-encoder + adaptive-KL penalty) or ``ppo`` (clipped, no auto-encoder)."""
     obs: str = "general"
-    """Observation spec name: ``paper`` or ``general``."""
+    """Observation spec name: ``paper``, ``general`` or ``plan`` (the general layout in the
+    synchronised plan's frame, with the plan's step: runtime.observation)."""
     k_neighbours: int = 6
     """``general`` observation: neighbours seen."""
     residual: bool = False
-    """``general`` only: the action is ``rule:assign``'s velocity plus the policy's
-    (:class:`trainer.networks.Agent`), so a brain starts at the rule."""
+    """``general`` and ``plan``: the action is a rule's velocity plus the policy's
+    (:class:`trainer.networks.Agent`), so a brain starts at the rule: ``rule:assign`` on the
+    general observation, the plan's step (``rule:frame`` at ``travel_weight``) on the plan's."""
+    travel_weight: float = 0.0
+    """``plan`` only: where the plan's frame sits, 0 the frame of fewest steps (``rule:frame``),
+    1 the team's centroid (``rule:frame-travel``); written into the brain's observation spec."""
+    train_safety: bool = False
+    """Train behind the robots' ORCA safety filter (runtime.safety, its defaults): the worlds
+    move each robot by the filtered command, as ``eval``, the world and the robots do, so a
+    brain learns what the filter will make of its commands."""
     front_end: str = "auto"
     """The paper brain's fixed front end before the normaliser (trainer.front_end), read from
     the paper observation alone: ``transport`` (the team matched to its pattern by optimal
@@ -191,6 +200,9 @@ def obs_spec_for(cfg: TrainConfig) -> ObservationSpec:
     """The observation a run builds: ``paper`` for its team size, else ``general``."""
     if cfg.obs == "paper":
         return ObservationSpec("paper", n_robots=cfg.n_robots)
+    if cfg.obs == "plan":
+        return ObservationSpec("plan", k_neighbours=cfg.k_neighbours,
+                               travel_weight=cfg.travel_weight)
     return ObservationSpec("general", k_neighbours=cfg.k_neighbours)
 
 
@@ -216,9 +228,9 @@ _NON_NEGATIVE_INTS = ("seed", "ae_steps", "policy_steps", "value_steps", "eval_s
 _POSITIVE_FLOATS = ("lr_ae", "lr_policy", "lr_value", "init_std", "min_std", "max_grad_norm",
                     "kl_target", "kl_coef_init", "kl_coef_min", "kl_coef_max", "clip_coef")
 _UNIT_RANGES = {"gamma": "(0, 1]", "gae_lambda": "[0, 1]", "kl_alpha": "(0, 1)",
-                "kl_beta_low": "(0, 1]"}
+                "kl_beta_low": "(0, 1]", "travel_weight": "[0, 1]"}
 """Fields within 0..1; a bracket closes the end, a parenthesis opens it."""
-OBS_NAMES: tuple[str, ...] = ("paper", "general")
+OBS_NAMES: tuple[str, ...] = ("paper", "general", "plan")
 
 
 def _field_types() -> dict[str, Any]:

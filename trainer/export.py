@@ -115,7 +115,21 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
     x = chain(x, _linear_layers(agent.policy.trunk, "policy.trunk"), relu_last=True)
     v_max = const("v_max", agent.v_max_mps)
     mean = unary("Tanh", gemm(x, "policy.mean_head", agent.policy.mean_head), "mean.tanh")
-    if agent.residual:  # action = v_max * tanh(.) + clip_vmax(obs[:, 0:2] / dt)
+    if agent.residual and agent.on_plan:  # action = v_max * tanh(.) + v_max * obs[:, 2:4]
+        nodes += [
+            helper.make_node("Mul", [mean, v_max], ["residual"], name="residual"),
+            helper.make_node(
+                "Slice",
+                ["obs", const_i64("rule.start", [2]), const_i64("rule.end", [4]),
+                 const_i64("rule.axes", [1])],
+                ["rule.pace"],
+                name="rule.pace",
+            ),
+            helper.make_node("Mul", ["rule.pace", const("rule.plan_vmax", agent.v_max_mps)],
+                             ["rule.out"], name="rule.out"),
+            helper.make_node("Add", ["residual", "rule.out"], ["action"], name="action"),
+        ]
+    elif agent.residual:  # action = v_max * tanh(.) + clip_vmax(obs[:, 0:2] / dt)
         nodes += [
             helper.make_node("Mul", [mean, v_max], ["residual"], name="residual"),
             helper.make_node(
@@ -222,7 +236,9 @@ def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Age
     front = "none"
     if "front.axis" in w:
         front = "transport" if "front.g_init" in w else "slots" if "front.slots" in w else "rank"
-    cfg = cfg.with_(residual="rule.dt" in w, front_end=front)
+    if "rule.plan_vmax" in w and cfg.obs != "plan":
+        raise BrainFileError(f"{path} acts on the plan observation; train it with --obs plan")
+    cfg = cfg.with_(residual="rule.dt" in w or "rule.plan_vmax" in w, front_end=front)
     dt_s = float(w["rule.dt"]) if "rule.dt" in w else 0.1
     if "front.inv_dt" in w:
         dt_s = 1.0 / float(w["front.inv_dt"])

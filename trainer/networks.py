@@ -23,12 +23,15 @@
   action is ``v_max * tanh(.)``.
 * **Value** ``V_phi``: 128-128-256 ReLU and one linear output.
 
-**Residual** (``TrainConfig.residual``, general observation only): the action
-is ``rule:assign``'s velocity, computed from the observation's slot vector
-(columns 0:2) as ``clip_vmax(slot / dt)``, plus ``v_max * tanh(.)`` of the
-policy; the mean head's weights and bias start at zero, so a fresh residual
-brain *is* the rule (to float32 rounding) and learning moves it from there.
-The rule part is in the exported graph too (trainer/export.py).
+**Residual** (``TrainConfig.residual``, general and plan observations): the
+action is a rule's velocity plus ``v_max * tanh(.)`` of the policy. On the
+general observation the rule is ``rule:assign``, ``clip_vmax(slot / dt)`` of
+the slot vector (columns 0:2); on the plan observation it is the plan's step,
+``v_max * columns 2:4`` (``rule:frame`` at the spec's travel weight: every
+robot lands on its slot at the same step, exactly). The mean head's weights
+and bias start at zero, so a fresh residual brain *is* the rule (to float32
+rounding) and learning moves it from there. The rule part is in the exported
+graph too (trainer/export.py).
 
 With ``algo="ppo"`` (the ablation) there is no auto-encoder: policy and value
 read the normalised observation directly; the networks are otherwise the same.
@@ -155,6 +158,7 @@ class Agent(nn.Module):
         self.obs_dim = obs_dim  # the raw observation's length (the brain's input)
         self.v_max_mps = float(v_max_mps)
         self.residual = bool(getattr(cfg, "residual", False))
+        self.on_plan = cfg.obs == "plan"  # the residual rides on the plan's step
         self.dt_s = float(dt_s)
         self.front: RankFrontEnd | None = None
         if cfg.front != "none":
@@ -181,10 +185,13 @@ class Agent(nn.Module):
             nn.init.zeros_(self.policy.mean_head.bias)
 
     def base_mps(self, obs: torch.Tensor) -> torch.Tensor:
-        """The velocity the residual is added to (m/s), (B, 2): ``rule:assign``'s,
-        slot vector / dt clipped to v_max; zeros when the agent is not residual."""
+        """The velocity the residual is added to (m/s), (B, 2): the plan's step on the plan
+        observation, else ``rule:assign``'s (slot vector / dt clipped to v_max); zeros when
+        the agent is not residual."""
         if not self.residual:
             return torch.zeros(*obs.shape[:-1], 2, dtype=obs.dtype)
+        if self.on_plan:
+            return obs[..., 2:4] * self.v_max_mps
         v = obs[..., 0:2] / self.dt_s
         sp = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
         out: torch.Tensor = v * (self.v_max_mps / torch.clamp_min(sp, self.v_max_mps))

@@ -2,7 +2,7 @@
 
 ::
 
-    r_i = R_g + R_c * c_i + beta * r_p + w_prog * prog_i + B * formed
+    r_i = R_g + R_c * c_i + beta * r_p + w_prog * prog_i + B * formed - w_trav * m_i
 
 ``c_i``: collisions robot i took part in this step. ``r_p`` is the *change* of
 the formation error (eq. 7, the RMS distance under the best assignment and
@@ -14,7 +14,10 @@ scores about +1. ``prog_i = (|p_i(t-1) - g_i| - |p_i(t) - g_i|) / (v_max dt)``
 in [-1, 1]: robot i's own progress toward ``g_i``, the slot it was shown in its
 observation at t-1 (the shared assignment's slot in world coordinates). A
 training-only, per-robot credit signal; 0 disables it. ``formed``: 1 on the
-step the pattern is formed (every robot).
+step the pattern is formed (every robot). ``m_i = |p_i(t) - p_i(t-1)| / (v_max dt)``
+in [0, 1]: the metres robot i moved this step, in full-speed steps; with the
+step penalty it pays for exactly what the evaluation measures (steps until the
+whole team is formed, metres travelled, contacts). 0 by default.
 
 Reward constants (``RewardConfig()``; per robot, per step)
 
@@ -43,6 +46,9 @@ Reward constants (``RewardConfig()``; per robot, per step)
     formed_bonus     1.0     once, to every robot, on the formed step: marks
                              success in the return; the fatigue already makes
                              ending early pay, so it stays modest.
+    travel_penalty   0.0     per full-speed step of motion (m_i above). Equal to
+                             the step penalty, a step of the team and a step's
+                             worth of one robot's travel cost the same.
     ================ ======= =====================================================
 
     ``PAPER_REWARD`` is eq. 6 alone (no progress term, no bonus).
@@ -66,6 +72,7 @@ class RewardConfig:
     beta: float = 1.0
     progress_weight: float = 1.0
     formed_bonus: float = 1.0
+    travel_penalty: float = 0.0
 
 
 DEFAULT_REWARD = RewardConfig()
@@ -86,6 +93,7 @@ def step_reward(
     formed: BoolArray,
     reach: float,
     dist_after: Array | None = None,
+    X_before: Array | None = None,
 ) -> Array:
     """One step's reward per robot, (N, E), robot-major as the training world keeps it.
 
@@ -97,7 +105,8 @@ def step_reward(
     distance to its goal *after* the step, for goals that move with the team (the rank
     matching's): the progress is then a difference of one per-robot potential, which
     telescopes over an episode, so goals that swap cannot be farmed; None: the distance
-    to ``goals_before``.
+    to ``goals_before``. ``X_before`` (2, N, E): positions before the step, for the
+    travel penalty (skipped without them).
     """
     reward = cfg.collision_penalty * hits + cfg.step_penalty
     reward += (cfg.beta / reach) * (error_before - error)
@@ -107,6 +116,9 @@ def step_reward(
             after = X - goals_before
             after_len = np.sqrt(after[0] * after[0] + after[1] * after[1])
         reward += (cfg.progress_weight / reach) * (dist_before - after_len)
+    if cfg.travel_penalty and X_before is not None:
+        moved = X - X_before
+        reward -= (cfg.travel_penalty / reach) * np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
     if cfg.formed_bonus and formed.any():
         reward[:, formed] += cfg.formed_bonus
     out: Array = reward.astype(np.float64, copy=False)

@@ -50,8 +50,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from runtime.decision import commands
 from runtime.errors import InputError
 from runtime.patterns import make_pattern, pattern_label
+from runtime.safety import OrcaParams
 from runtime.types import F32Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.checkpoints import (
@@ -228,7 +230,10 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             a = mean + std * torch.randn(mean.shape, generator=gen)
             logp = gaussian_logprob(a, mean, std)
             base = agent.base_mps(torch.from_numpy(obs.reshape(E * N, -1)))  # 0 unless residual
-            res = bw.step((a * v_max_mps + base).numpy().reshape(E, N, 2))
+            vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
+            if cfg.train_safety:  # the robots' filter between the brain and the world
+                vel = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world)[0]
+            res = bw.step(vel)
             reward = res.reward.copy()
             ep = res.episode
             if ep is not None:

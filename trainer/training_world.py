@@ -1,12 +1,10 @@
 """The training world: E independent envs of N disc robots, batch-first numpy.
 
-Every public array is shaped ``(E, N, ...)`` (envs, robots, ...). Units:
-metres, seconds, metres per second. Inside, the step keeps positions as
-``(2, N, E)`` (component, robot, env) and pair arrays as ``(N, N, E)``: with
-the env axis innermost numpy's inner loops are long (~5x faster than over
-``(E, N, N, 2)``, measured here). Steps 1-4 and the general observation run
-as compiled loops over envs (:mod:`trainer.kernels`, numba; ``compiled=False``
-keeps the numpy path): the same operations in the same order, so the same
+Public arrays are ``(E, N, ...)`` (envs, robots, ...), in metres, seconds, m/s.
+Inside, positions are ``(2, N, E)`` and pair arrays ``(N, N, E)``: the env axis
+innermost gives numpy long inner loops (~5x faster than ``(E, N, N, 2)``). Steps
+1-4 and the general observation run as compiled loops over envs
+(:mod:`trainer.kernels`, numba; ``compiled=False`` keeps numpy): the same
 numbers bit for bit, without numpy's per-call overhead or scipy's per-env call.
 
 Step (``BatchWorld.step``), in order
@@ -35,12 +33,9 @@ Step (``BatchWorld.step``), in order
        error-optimal one, up to the hysteresis margin). *Truncated*: the step
        limit is reached without forming. ``done = formed | truncated``.
     7. **Auto-reset.** Envs that are done are reset at once (as gymnasium's
-       vector envs do): ``StepResult.obs`` holds the first observation of the
-       new episode for them, and ``StepResult.episode`` the finished episodes'
-       statistics, with their last observation (``final_obs``).
-
-Reward constants: :mod:`trainer.reward` (``RewardConfig``, ``DEFAULT_REWARD``,
-``PAPER_REWARD``).
+       vector envs do): ``StepResult.obs`` holds the new episode's first
+       observation, ``StepResult.episode`` the finished episodes' statistics
+       and last observation (``final_obs``).
 
 Starts and patterns
     Each env owns a ``numpy.random.Generator`` spawned from ``SeedSequence(seed)``
@@ -65,8 +60,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime.formation import assign_slots_batch, assign_slots_env_last, lower_bounds
-from runtime.observation import ObservationSpec, general_observation_env_last, observe
+from runtime.observation import ObservationSpec, general_observation_env_last, observe, plan_pace
 from runtime.patterns import make_pattern, random_pattern
+from runtime.rules import plan_targets
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.contacts import move
@@ -166,14 +162,9 @@ class BatchWorld:
         if n_robots < 2:
             raise ValueError(f"n_robots must be >= 2, got {n_robots}")
         if not obs_spec.accepts_team(n_robots):
-            raise ValueError(
-                f"observation '{obs_spec.name}' is for {obs_spec.n_robots} robots, not {n_robots}"
-            )
-        if world.max_step_m > world.radius_m + 1e-12:
-            raise ValueError(
-                "the contact model needs v_max * dt <= R (no robot may cross another's "
-                f"centre in one step); got {world.max_step_m} > {world.radius_m}"
-            )
+            raise ValueError(f"observation '{obs_spec.name}' is for {obs_spec.n_robots} robots")
+        if world.max_step_m > world.radius_m + 1e-12:  # no robot may cross a centre in a step
+            raise ValueError(f"the contact model needs v_max * dt <= R, got {world.max_step_m}")
         density = n_robots * math.pi * (world.start_separation_m / 2.0) ** 2 / world.arena_m**2
         if density > 0.3:
             raise ValueError(f"{n_robots} robots do not fit apart in a {world.arena_m} m arena")
@@ -428,16 +419,23 @@ class BatchWorld:
         sel = slice(None) if ids is None else ids
         if not self.build_obs:
             return self._no_obs if ids is None else self._no_obs[: len(ids)]
-        if self.obs_spec.name == "general":  # the same values, built env-last (faster)
+        spec = self.obs_spec
+        if spec.needs_slots:  # the same values, built env-last (faster)
             X = self._X if ids is None else self._X[:, :, ids]
             G = self._G if ids is None else self._G[:, :, ids]
             X_prev = self.frames[sel, 1].transpose(2, 1, 0)
-            k = self.obs_spec.k_neighbours
+            k, K = spec.k_neighbours, None
+            if spec.name == "plan":  # the slots in the plan's frame, and its pace
+                slots = self._slots.T if ids is None else self._slots[:, ids].T
+                T, K = plan_targets(self.frames[sel, 0], self.pattern[sel], slots,
+                                    spec.travel_weight, self.world)
+                G = T.transpose(2, 1, 0)
             if self.compiled:
-                return _kernels.observe_general(X, X_prev, G, k, self.world)
-            return general_observation_env_last(X, X_prev, G, k, self.world)
-        obs = observe(self.obs_spec, self.frames[sel], None, None, self.world)
-        return obs.astype(np.float32)
+                obs = _kernels.observe_general(X, X_prev, G, k, self.world)
+            else:
+                obs = general_observation_env_last(X, X_prev, G, k, self.world)
+            return obs if K is None else plan_pace(obs, K, self.world)
+        return observe(self.obs_spec, self.frames[sel], None, None, self.world).astype(np.float32)
 
     def observe(self) -> F32Array:
         """The current observation of every robot, (E, N, D) float32."""
@@ -564,7 +562,7 @@ class BatchWorld:
         G0, d0, d1 = self._G, self._dist, None  # progress: toward the rank goals, if asked
         if self.rank_goals:
             (G0, d0), d1 = rank_goals(self._X, self._C), rank_goals(X1, self._C)[1]
-        reward = step_reward(cfg, hits, self.error, error, X1, G0, d0, formed, reach, d1)
+        reward = step_reward(cfg, hits, self.error, error, X1, G0, d0, formed, reach, d1, self._X)
         self._advance(P1, X1, G, dist2, hits, slots, error, reward)
         truncated, done = self._done(formed)  # 6. termination
 

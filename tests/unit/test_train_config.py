@@ -71,7 +71,7 @@ def test_every_field_can_be_set_both_ways() -> None:
         elif isinstance(v, int):
             new, text = v + 1, str(v + 1)
         elif isinstance(v, float):
-            new = v * 0.9 if v < 1 else v * 1.1
+            new = 0.5 if v == 0 else v * 0.9 if v < 1 else v * 1.1
             text = repr(new)
         else:
             new = text = strings[f.name]
