@@ -24,7 +24,9 @@ point is marked.
 
 Learned brains are compared with the best rule case by case: the rule whose
 steps + travel ratios are least in that case (with the filter). A brain "holds"
-a case when both its ratios are within 0.02 of that rule's.
+a case when both its ratios are within 0.02 of that rule's. A brain whose
+manifest names a built-in pattern (``exports/circle-10-general.onnx``) runs only
+that pattern's cases: its summary is over those.
 
     .venv/bin/python benchmarks/frontier.py [--brain exports/general.onnx ...]
         [--episodes 6] [--quick] [--json] [--plot docs/figures/frontier.png]
@@ -79,6 +81,13 @@ def run_case(brain: Brain, pattern: str, n: int, episodes: int, seed: int,
              safety: OrcaParams | None) -> Cell:
     r = evaluate_brain(brain, pattern, n, episodes, seed=seed + n, safety=safety, progress=False)
     return Cell(r.success_rate, r.steps_ratio, r.travel_ratio, r.collisions)
+
+
+def own_pattern(brain: Brain) -> str | None:
+    """The built-in pattern a brain's manifest carries, if it is one of :data:`PATTERNS`."""
+    m = getattr(brain, "manifest", None)
+    p = getattr(m, "pattern", None)
+    return p if isinstance(p, str) and p in PATTERNS else None
 
 
 def mean(xs: list[float]) -> float:
@@ -149,22 +158,25 @@ def main(argv: list[str] | None = None) -> int:
     cases = [(p, n) for n in teams for p in PATTERNS]
     safety = OrcaParams()
     table: dict[str, dict[str, Cell]] = {name: {} for name in brains}
+    own = {name: own_pattern(b) for name, b in brains.items()}
     for p, n in cases:
         for name, b in brains.items():
-            table[name][f"{p}-{n}"] = run_case(b, p, n, episodes, args.seed, safety)
+            if own[name] in (None, p):
+                table[name][f"{p}-{n}"] = run_case(b, p, n, episodes, args.seed, safety)
     frontier = []
     for w in FRONTIER_WEIGHTS:
         rule = FrameRule("rule:frame", travel_weight=w)
         cells = [run_case(rule, p, n, episodes, args.seed, None) for p, n in cases]
         frontier.append((w, mean([c.steps for c in cells]), mean([c.travel for c in cells])))
-    keys = [f"{p}-{n}" for p, n in cases]
+    all_keys = [f"{p}-{n}" for p, n in cases]
     rules = [k for k in brains if k.startswith("rule:")]
     best_rule = {
-        k: min(rules, key=lambda r: table[r][k].steps + table[r][k].travel) for k in keys
+        k: min(rules, key=lambda r: table[r][k].steps + table[r][k].travel) for k in all_keys
     }
     summary: dict[str, dict[str, Any]] = {}
     for name in brains:
         row = table[name]
+        keys = [k for k in all_keys if k in row]
         s: dict[str, Any] = {
             "steps_ratio": mean([row[k].steps for k in keys]),
             "travel_ratio": mean([row[k].travel for k in keys]),
@@ -200,9 +212,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"Frontier: {title}, ORCA on (defaults); steps / travel as ratios to the lower bounds\n")
     print("| case | " + " | ".join(names) + " |")
     print("|---" * (len(names) + 1) + "|")
-    for k in keys:
+    for k in all_keys:
         cells = []
         for name in names:
+            if k not in table[name]:
+                cells.append("-")
+                continue
             c = table[name][k]
             mark = "*" if name == best_rule[k] else ""
             ok = "" if c.success == 1.0 else f" ({100 * c.success:.0f} %)"

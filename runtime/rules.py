@@ -64,10 +64,15 @@ of steps up to rounding counts as that many steps, not one more."""
 
 FRAME_RULES: Final[dict[str, float]] = {
     "rule:frame": 0.0,
+    "rule:frame-balanced": 0.25,
     "rule:frame-travel": 1.0,
 }
 """Each team rule's ``travel_weight``: 0 the frame of fewest steps, 1 the
-centroid frame (less travel, a step or a few more)."""
+centroid frame (less travel, a step or a few more). ``rule:frame-balanced``
+(0.25) is the base the shipped plan brains learn on: behind the safety filter
+its steps + travel ratios were the least of the weights 0, 0.25, 0.5, 0.75 on
+15 cases (n = 7, 13, 25; 2.262 against 2.272 for 0, a near tie; see
+docs/frontier.md)."""
 
 
 def straight_to_slot(obs: NDArray[Any], world: WorldConfig = DEFAULT_WORLD) -> Array:
@@ -132,7 +137,7 @@ def frame_plan(
 
 
 class FrameRule:
-    """A team rule (``rule:frame``, ``rule:frame-travel``): :func:`frame_plan` in the pipeline.
+    """A team rule (``rule:frame``, ``-balanced``, ``-travel``): :func:`frame_plan` in the pipeline.
 
     ``team_velocities(pos, pattern, slots)`` -> (E, n, 2) m/s is what
     :mod:`runtime.decision` calls; ``act`` (a general observation row ->

@@ -33,6 +33,7 @@ run the brain on the plain paper observation, unchanged.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -165,7 +166,7 @@ def onnx_nodes(front: RankFrontEnd, x: str,
     ranks = const("front.ranks", front.ranks.numpy())
     zero = const("front.zero", 0.0)
 
-    def node(op: str, inputs: list[str], out: str, **attrs: object) -> str:
+    def node(op: str, inputs: list[str], out: str, **attrs: Any) -> str:
         nodes.append(helper.make_node(op, inputs, [out], name=out, **attrs))
         return out
 

@@ -158,7 +158,8 @@ def evaluate_policy(
     seed: int,
     world: WorldConfig = DEFAULT_WORLD,
 ) -> EvalSummary:
-    """Deterministic policy, no safety filter, the first episode of ``episodes`` seeded worlds."""
+    """Deterministic policy, the first episode of ``episodes`` seeded worlds; behind the safety
+    filter when the run trains behind it (``cfg.train_safety``), else without."""
     bw = BatchWorld(
         episodes,
         cfg.n_robots,
@@ -176,7 +177,10 @@ def evaluate_policy(
     error = np.zeros(episodes)
     while not done.all():
         act = agent.act_team_mps(torch.from_numpy(obs.reshape(-1, bw.obs_dim)), cfg.n_robots)
-        res = bw.step(act.numpy().reshape(episodes, cfg.n_robots, 2))
+        vel = act.numpy().reshape(episodes, cfg.n_robots, 2)
+        if cfg.train_safety:
+            vel = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world)[0]
+        res = bw.step(vel)
         obs = res.obs
         ep = res.episode
         if ep is not None:
