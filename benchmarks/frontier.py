@@ -87,7 +87,7 @@ def own_pattern(brain: Brain) -> str | None:
     """The built-in pattern a brain's manifest carries, if it is one of :data:`PATTERNS`."""
     m = getattr(brain, "manifest", None)
     p = getattr(m, "pattern", None)
-    return p if isinstance(p, str) and p in PATTERNS else None
+    return p if isinstance(p, str) and p in PATTERNS and p != "random" else None
 
 
 def mean(xs: list[float]) -> float:

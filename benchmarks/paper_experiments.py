@@ -938,7 +938,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrainError as e:
         print(f"paper_experiments: {e}", file=sys.stderr)
         return 2
-    general = [r for r in refs if brains[r].spec.name == "general"]
+    general = [r for r in refs if brains[r].spec.needs_slots]
     out: Path = args.out
     figures = out / "figures"
     figures.mkdir(parents=True, exist_ok=True)

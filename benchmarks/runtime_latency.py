@@ -116,7 +116,7 @@ def find_or_build_brain(tmp: Path) -> tuple[Path, str]:
             b = load_brain(str(p))
         except ValueError:
             continue
-        if b.spec.name == "general":
+        if b.spec.needs_slots:  # a general or plan brain
             return p, f"exports/{p.name}"
     spec = ObservationSpec("general")
     data = mlp_brain_bytes(spec)

@@ -61,7 +61,7 @@ def choose_brains(
     """The brain for each pattern from a brains directory, and the patterns with none.
 
     A brain fits a pattern when its manifest names that pattern (by label), or
-    names none and observes ``general`` (any pattern); a paper brain must also
+    names none and is of the general kind (:func:`brain_kind`); a paper brain must also
     observe ``n_robots``. Preference: the ``prefer`` kind, then a brain made for
     the pattern over a pattern-free one, then the file name.
     """
@@ -72,21 +72,28 @@ def choose_brains(
         label = pattern_label(p)
         fits = []
         for onnx, m in found:
-            obs = m.observation.name
+            kind = brain_kind(m.observation.name)
             if m.pattern is not None and pattern_label(m.pattern) != label:
                 continue
-            if m.pattern is None and obs != "general":
+            if m.pattern is None and kind != "general":
                 continue
             if not m.observation.accepts_team(n_robots):
                 continue
-            fits.append((obs != prefer, m.pattern is None, onnx.name, onnx, m))
+            fits.append((kind != prefer, m.pattern is None, onnx.name, onnx, m))
         if not fits:
             missing.append(p)
             continue
         *_, onnx, m = min(fits, key=lambda f: f[:3])
         bid = m.brain_id
-        chosen[p] = BrainChoice(str(onnx), bid, m.observation.name, f"{onnx.name} ({bid[:8]})")
+        chosen[p] = BrainChoice(str(onnx), bid, brain_kind(m.observation.name),
+                                f"{onnx.name} ({bid[:8]})")
     return chosen, missing
+
+
+def brain_kind(observation: str) -> str:
+    """``paper`` for the paper's observation, else ``general`` (general and plan brains: any
+    pattern, any team size)."""
+    return "paper" if observation == "paper" else "general"
 
 
 def file_choice(path: str | Path, n_robots: int) -> BrainChoice:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -116,8 +117,9 @@ def _resume(st: TrainState, ck: dict[str, Any]) -> None:
 
 
 def save_checkpoint(path: Path, st: TrainState, cfg: TrainConfig, spec: ObservationSpec,
-                    wall_s: float, stage: int) -> None:
-    """Write the run as it stands (atomically: a temporary file, then a rename)."""
+                    wall_s: float, stage: int, patterns: Sequence[str] = ()) -> None:
+    """Write the run as it stands (atomically: a temporary file, then a rename).
+    ``patterns``: the run's pattern stages, which a resume without ``--pattern`` goes on with."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(
@@ -133,6 +135,7 @@ def save_checkpoint(path: Path, st: TrainState, cfg: TrainConfig, spec: Observat
             "agent_steps": st.agent_steps,
             "wall_s": wall_s,
             "stage": stage,
+            "patterns": [str(p) for p in patterns],
             "curve": st.curve,
             "best": st.best,
             "best_state": st.best["state"],

@@ -53,7 +53,8 @@ DEFAULT_TIME_BUDGET_S = 1800.0
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     d = TrainConfig()
-    p.add_argument("--pattern", default="circle", help="built-in name or points file")
+    p.add_argument("--pattern", help="built-in name or points file (default circle; a resumed "
+                                     "run: its checkpoint's patterns)")
     p.add_argument(
         "--patterns",
         help="comma-separated sequence (e.g. circle,cross,line,heart), each continuing the last",
@@ -215,7 +216,13 @@ def _fail(msg: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    patterns = [s.strip() for s in (args.patterns or args.pattern).split(",") if s.strip()]
+    given = args.patterns or args.pattern
+    if given is None and args.resume:  # the interrupted run's own patterns
+        try:
+            given = ",".join(load_checkpoint(Path(args.resume)).get("patterns") or []) or None
+        except InitError as e:
+            return _fail(str(e))
+    patterns = [s.strip() for s in (given or "circle").split(",") if s.strip()]
     if not patterns:
         return _fail("no pattern given")
     try:

@@ -304,7 +304,8 @@ class _Run:
         return time.perf_counter() - self.t_start
 
     def save(self, st: TrainState, path: Path, wall_s: float, stage: int) -> None:
-        save_checkpoint(path, st, self.cfg, obs_spec_for(self.cfg), wall_s, stage)
+        save_checkpoint(path, st, self.cfg, obs_spec_for(self.cfg), wall_s, stage,
+                        self.plan.patterns)
 
 
 @dataclass

@@ -167,7 +167,7 @@ def test_the_manifest_keeps_the_effective_configuration(tmp_path, capsys) -> Non
                "latent_dim = 4\nae_hidden = 8\neval_episodes = 1\nseed = 3\n"
                "[reward]\nformed_bonus = 2.0\n")
     out = tmp_path / "tiny.onnx"
-    code = main(["train", "--pattern", "circle", "--config", str(f), "--seed", "4",
+    code = main(["train", "--pattern", "line", "--config", str(f), "--seed", "4",
                  "--set", "eval_every=1", "--set", "reward.beta=0.5", "--time-budget-s", "0",
                  "--final-eval-episodes", "0", "--no-progress", "--json", "--out", str(out)])
     assert code == 0, capsys.readouterr().err
@@ -185,3 +185,8 @@ def test_the_manifest_keeps_the_effective_configuration(tmp_path, capsys) -> Non
     printed, err = capsys.readouterr()
     assert tomllib.loads(printed)["seed"] == 4
     assert "checkpoint's configuration" in err and len(err.strip().splitlines()) == 1
+    # ... and with its checkpoint's patterns when no --pattern is given
+    code = main(["train", "--resume", str(ckpt), "--time-budget-s", "0", "--final-eval-episodes",
+                 "0", "--no-progress", "--json", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert json.loads(out.with_suffix(".json").read_text())["training"]["patterns"] == ["line"]
