@@ -70,9 +70,9 @@ FRAME_RULES: Final[dict[str, float]] = {
 """Each team rule's ``travel_weight``: 0 the frame of fewest steps, 1 the
 centroid frame (less travel, a step or a few more). ``rule:frame-balanced``
 (0.25) is the base the shipped plan brains learn on: behind the safety filter
-its steps + travel ratios were the least of the weights 0, 0.25, 0.5, 0.75 on
-15 cases (n = 7, 13, 25; 2.262 against 2.272 for 0, a near tie; see
-docs/frontier.md)."""
+the weights 0, 0.25, 0.5 and 0.75 tie on steps + travel (2.260-2.272 on 15
+cases, docs/frontier.md); 0.25 cuts rule:frame's travel most for the fewest
+steps given up."""
 
 
 def straight_to_slot(obs: NDArray[Any], world: WorldConfig = DEFAULT_WORLD) -> Array:

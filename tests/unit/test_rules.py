@@ -54,7 +54,7 @@ def test_every_robot_lands_on_its_slot_at_the_same_step(
     slots = assign_slots(P, C)
     d = P - C[slots]
     centre, radius = _min_enclosing_circle(d)
-    t = d.mean(0) if weight == 1.0 else centre
+    t = centre + weight * (d.mean(0) - centre)  # the blend of the two frames
     far = float(np.hypot(*(t - d).T).max())
     K = math.ceil(far / W.max_step_m - 1e-9)
     track = run_plan(P, C, weight, K + 3)
@@ -69,7 +69,7 @@ def test_every_robot_lands_on_its_slot_at_the_same_step(
             np.testing.assert_allclose(p, goal, atol=1e-9)  # exactly there, and it stays
     if weight == 0.0:  # the minimax frame: the farthest robot needs the circle's radius
         assert K == math.ceil(radius / W.max_step_m - 1e-9)
-    else:  # the centroid frame: the team's centroid never moves
+    elif weight == 1.0:  # the centroid frame: the team's centroid never moves
         np.testing.assert_allclose(track[-1].mean(0), P.mean(0), atol=1e-9)
 
 
