@@ -70,9 +70,8 @@ from runtime.observation import (
     general_row,
     neighbour_order,
     observe,
-    plan_pace,
 )
-from runtime.rules import plan_targets
+from runtime.rules import PlanFrame, plan_targets
 from runtime.safety import OrcaParams, clamp_speed, nearest_in_range, orca_velocity
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -297,6 +296,7 @@ class Controller:
         self._prev_slots: IntArray | None = None
         self._duals: Array = np.zeros(0)  # the assignment proof's slot potentials (m^2)
         self._proof_wait = 0  # steps until the proof is tried again after it failed
+        self._plan = PlanFrame()  # the plan observation's frame, its support kept
 
     @property
     def previous_slots(self) -> IntArray | None:
@@ -440,18 +440,17 @@ class Controller:
             if team is None and rows:
                 steps_left = 0.0
                 if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
-                    c = np.asarray(self._pattern_obj, dtype=np.float64)
-                    tg, k = plan_targets(pos[None], c[None], slots[None], spec.travel_weight,
-                                         self.world)
-                    sx, sy = tg[0, i].tolist()
-                    steps_left = float(k[0])
+                    pts = self._cc[slots]
+                    t, steps_left = self._plan.solve(pos, pts, spec.travel_weight, self.world)
+                    sx, sy = (pts[i] + t).tolist()
                 else:
                     sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
                 order, d2 = neighbour_order(i, L, pos)
                 row = general_row(i, L, V, (sx, sy), spec.k_neighbours, self.world, order=order)
+                if steps_left:  # plan_pace on the row's floats
+                    den = steps_left * (self.world.v_max_mps * self.world.dt_s)
+                    row[2], row[3] = row[0] / den, row[1] / den
                 obs = np.array([row])
-                if steps_left:
-                    plan_pace(obs, steps_left, self.world)
                 if safety is not None:
                     near = _near_in_order(i, L, order, d2, safety)
             elif team is None:

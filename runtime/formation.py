@@ -37,7 +37,7 @@ import functools
 import importlib.machinery
 import importlib.util
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -262,7 +262,7 @@ def is_formed(P: Array, C: Array, tol: float = DEFAULT_WORLD.formed_tol_m) -> bo
 # ---------------------------------------------------------------- lower bounds
 
 
-def _min_enclosing_circle(pts: Array) -> tuple[Array, float]:
+def _min_enclosing_circle(pts: Array | Sequence[Sequence[float]]) -> tuple[Array, float]:
     """Exact smallest enclosing circle (Welzl, iterative move-to-front). O(n) expected."""
     p = [(float(q[0]), float(q[1])) for q in pts]
 

@@ -45,6 +45,7 @@ general observation row is ``rule:assign``'s (the only thing one row allows).
 
 from __future__ import annotations
 
+import math
 from typing import Any, Final
 
 import numpy as np
@@ -56,7 +57,14 @@ from runtime.observation import ObservationSpec
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["FRAME_RULES", "FrameRule", "frame_plan", "plan_targets", "straight_to_slot"]
+__all__ = [
+    "FRAME_RULES",
+    "FrameRule",
+    "PlanFrame",
+    "frame_plan",
+    "plan_targets",
+    "straight_to_slot",
+]
 
 _STEP_TOL: Final = 1e-9
 """Relative slack in ``ceil(distance / reach)``: a distance that is a whole number
@@ -134,6 +142,90 @@ def frame_plan(
     target, k = plan_targets(pos, pattern, slots, travel_weight, world)
     out: Array = (target - np.asarray(pos, dtype=np.float64)) / (k * world.dt_s)[:, None, None]
     return out
+
+
+SMALL_TEAM: Final = 24
+"""Team size from which :class:`PlanFrame` works on arrays (below it, on plain floats)."""
+
+
+class PlanFrame:
+    """:func:`plan_targets` for one team, step after step: the robot's path.
+
+    The same numbers (to rounding) with less work: the smallest circle enclosing
+    the displacements is first tried as the circle of the last step's support
+    (the two or three displacements on its boundary). That circle is the
+    smallest of all exactly when it encloses every displacement (the smallest
+    circle of a subset is never larger, and the smallest one is unique), which
+    under the plan holds step after step (the displacements shrink
+    homothetically); otherwise Welzl's algorithm runs and finds the new support.
+    """
+
+    def __init__(self) -> None:
+        self._support: list[int] = []
+
+    def solve(self, pos: Array, slot_points: Array, travel_weight: float,
+              world: WorldConfig = DEFAULT_WORLD) -> tuple[Array, float]:
+        """``pos`` (n, 2) positions, ``slot_points`` (n, 2) each robot's pattern point (any
+        translation of the pattern). Returns (the frame ``t`` (2,), steps left ``K``):
+        robot j's slot is ``slot_points[j] + t``."""
+        n = len(pos)
+        if n < SMALL_TEAM:
+            return self._solve_lists(pos.tolist(), slot_points.tolist(), travel_weight, world)
+        d = pos - slot_points
+        centre: Array | None = None
+        if self._support and max(self._support) < n:
+            c, r = _min_enclosing_circle(d[self._support])
+            gap = np.hypot(d[:, 0] - c[0], d[:, 1] - c[1])
+            if (gap <= r * (1 + 1e-12) + 1e-12).all():
+                centre = c
+        if centre is None:
+            centre, r = _min_enclosing_circle(d)
+            gap = np.hypot(d[:, 0] - centre[0], d[:, 1] - centre[1])
+            self._support = np.flatnonzero(gap >= r * (1 - 1e-9) - 1e-12)[:3].tolist()
+        t = centre + travel_weight * (np.add.reduce(d, 0) / n - centre)
+        s = t - d
+        far = float(np.sqrt((s * s).sum(axis=1).max()))
+        k = max(math.ceil(far / (world.v_max_mps * world.dt_s) - _STEP_TOL), 1)
+        return t, float(k)
+
+    def _solve_lists(self, L: list[list[float]], Q: list[list[float]], travel_weight: float,
+                     world: WorldConfig) -> tuple[Array, float]:
+        """:meth:`solve` on plain floats: below :data:`SMALL_TEAM` robots a dozen numpy calls
+        cost more than the arithmetic."""
+        d: list[tuple[float, float]] = []
+        mx = my = 0.0
+        for p, q in zip(L, Q, strict=True):
+            x, y = p[0] - q[0], p[1] - q[1]
+            d.append((x, y))
+            mx += x
+            my += y
+        n = len(d)
+        hypot = math.hypot
+        found = False
+        if self._support and max(self._support) < n:
+            c, r = _min_enclosing_circle([d[j] for j in self._support])
+            cx, cy = float(c[0]), float(c[1])
+            lim = r * (1 + 1e-12) + 1e-12
+            found = True
+            for x, y in d:
+                if hypot(x - cx, y - cy) > lim:
+                    found = False
+                    break
+        if not found:
+            c, r = _min_enclosing_circle(d)
+            cx, cy = float(c[0]), float(c[1])
+            lim = r * (1 - 1e-9) - 1e-12
+            on = [j for j, (x, y) in enumerate(d) if hypot(x - cx, y - cy) >= lim]
+            self._support = on[:3]
+        tx = cx + travel_weight * (mx / n - cx)
+        ty = cy + travel_weight * (my / n - cy)
+        far = 0.0
+        for x, y in d:
+            g = hypot(tx - x, ty - y)
+            if g > far:
+                far = g
+        k = max(math.ceil(far / (world.v_max_mps * world.dt_s) - _STEP_TOL), 1)
+        return np.array([tx, ty]), float(k)
 
 
 class FrameRule:

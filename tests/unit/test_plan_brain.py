@@ -13,7 +13,7 @@ from runtime.decision import Controller, commands, decide_batch
 from runtime.formation import assign_slots_batch
 from runtime.observation import ObservationError, ObservationSpec, observe
 from runtime.patterns import make_pattern
-from runtime.rules import FrameRule, frame_plan, plan_targets
+from runtime.rules import FrameRule, PlanFrame, frame_plan, plan_targets
 from runtime.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD
 from trainer.config import TrainConfig, obs_spec_for
@@ -179,3 +179,27 @@ def test_a_short_plan_run_trains_and_exports(tmp_path: Path) -> None:
     brain = load_brain(str(tmp_path / "b.onnx"))
     assert brain.spec == SPEC
     assert evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False).success_rate > 0.0
+
+
+@pytest.mark.parametrize("n", [9, 40])  # plain floats below SMALL_TEAM, arrays from it
+def test_the_robots_plan_frame_equals_the_batch_one_step_after_step(n: int) -> None:
+    """PlanFrame keeps the enclosing circle's support from step to step: the same frame and
+    steps left as plan_targets, whether the support holds (the team follows the plan) or
+    not (the team jumps)."""
+    rng = np.random.default_rng(n)
+    C = make_pattern("heart", n)
+    frame = PlanFrame()
+    pos = rng.uniform(0.0, 6.0, (n, 2))
+    kept = 0
+    for step in range(40):
+        if step % 10 == 0:  # a jump: the old support no longer encloses
+            pos = rng.uniform(0.0, 6.0, (n, 2))
+        slots = assign_slots_batch(pos[None], C[None])
+        target, k = plan_targets(pos[None], C[None], slots, W)
+        before = list(frame._support)
+        t, steps_left = frame.solve(pos, C[slots[0]], W)
+        kept += before == frame._support
+        np.testing.assert_allclose(C[slots[0]] + t, target[0], atol=1e-9)
+        assert steps_left == k[0]
+        pos = target[0] - (target[0] - pos) * (1.0 - 1.0 / (k[0] + 1.0))  # along the plan
+    assert kept >= 30  # the support carried over on the plan's steps
