@@ -72,7 +72,7 @@ from runtime.observation import (
     observe,
 )
 from runtime.rules import PlanFrame, plan_targets
-from runtime.safety import OrcaParams, clamp_speed, nearest_in_range, orca_velocity
+from runtime.safety import OrcaParams, clamp_speed, landing, nearest_in_range, orca_velocity
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -429,7 +429,7 @@ class Controller:
             slots = self._assign(pos - cen)
             self._prev_slots = slots
             slot = int(slots[i])
-            team = getattr(brain, "team_velocities", None)
+            team = getattr(brain, "team_plan", None) or getattr(brain, "team_velocities", None)
             L = self._L
             rows = spec.needs_slots  # the general layout: general or plan
             V = self._velocities() if rows or team is not None else []
@@ -437,8 +437,8 @@ class Controller:
             # 2. observe (own row): the general builder's one-robot kernel on plain
             # floats, its neighbour order shared with the safety filter; else the builder
             obs: Array | None = None  # a team rule plans from the poses (step 3)
+            steps_left = 0.0  # the plan's steps left, for the filter's landing horizon
             if team is None and rows:
-                steps_left = 0.0
                 if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
                     pts = self._cc[slots]
                     t, steps_left = self._plan.solve(pos, pts, spec.travel_weight, self.world)
@@ -451,6 +451,8 @@ class Controller:
                     den = steps_left * (self.world.v_max_mps * self.world.dt_s)
                     row[2], row[3] = row[0] / den, row[1] / den
                 obs = np.array([row])
+                if steps_left:
+                    safety = landing(safety, steps_left, self.world)
                 if safety is not None:
                     near = _near_in_order(i, L, order, d2, safety)
             elif team is None:
@@ -459,7 +461,11 @@ class Controller:
             try:
                 if team is not None:
                     c = np.asarray(self._pattern_obj, dtype=np.float64)
-                    bvx, bvy = np.asarray(team(pos[None], c[None], slots[None]))[0, i].tolist()
+                    out = team(pos[None], c[None], slots[None])
+                    if isinstance(out, tuple):  # a plan: its steps left set the landing
+                        out, k = out
+                        safety = landing(safety, float(k[0]), self.world)
+                    bvx, bvy = np.asarray(out)[0, i].tolist()
                 elif obs is not None:
                     bvx, bvy = brain_velocities(brain, obs)[0]
             except Exception:  # a brain must never take the loop down
@@ -512,12 +518,16 @@ def decide_batch(
         raise ValueError(f"brain spec '{spec.name}' ({spec.n_robots} robots) cannot drive {n}")
     # 1. assign
     slots = assign_slots_batch(pos, C, prev_slots)
-    team = getattr(brain, "team_velocities", None)
+    team = getattr(brain, "team_plan", None) or getattr(brain, "team_velocities", None)
+    steps_left: Array | None = None  # a plan's steps left per team: the landing horizon
     if team is not None:  # a team rule: steps 2-3 from the poses
-        act: Rows = np.asarray(team(pos, C, slots), dtype=np.float64).reshape(E * n, 2).tolist()
+        out = team(pos, C, slots)
+        if isinstance(out, tuple):
+            out, steps_left = out
+        act: Rows = np.asarray(out, dtype=np.float64).reshape(E * n, 2).tolist()
     else:
         # 2. observe (every row)
-        target, steps_left = None, None
+        target = None
         if spec.name == "plan":
             target, steps_left = plan_targets(pos, C, slots, spec.travel_weight, world)
         elif spec.needs_slots:
@@ -526,7 +536,7 @@ def decide_batch(
         # 3. act
         act = brain_velocities(brain, obs.reshape(E * n, spec.dim))
     # 4. command, robot by robot
-    vel, changed = commands(act, pos, prev, safety, world)
+    vel, changed = commands(act, pos, prev, safety, world, steps_left)
     return vel, slots, changed
 
 
@@ -536,14 +546,17 @@ def commands(
     prev: Array,
     safety: OrcaParams | None,
     world: WorldConfig = DEFAULT_WORLD,
+    steps_left: Array | None = None,
 ) -> tuple[Array, BoolArray]:
     """Step 4 for E teams: every robot's :func:`command` from its own view.
 
     ``act``: the brain's velocities, (E * n) rows of [vx, vy] or an (E, n, 2)
     array (m/s); ``pos``, ``prev``: (E, n, 2) positions at t and t-1. Returns
-    (velocities (E, n, 2) m/s, safety_changed (E, n)). The training world calls
-    it too (``TrainConfig.train_safety``), so a brain trains behind the filter
-    the robots run.
+    (velocities (E, n, 2) m/s, safety_changed (E, n)). ``steps_left`` (E,): each
+    team's plan steps left, for the filter's landing horizon
+    (:func:`runtime.safety.landing`); None for brains without a plan. The
+    training world calls it too (``TrainConfig.train_safety``), so a brain
+    trains behind the filter the robots run.
     """
     E, n, _ = pos.shape
     rows: Rows = act.reshape(E * n, 2).tolist() if isinstance(act, np.ndarray) else act
@@ -553,9 +566,10 @@ def commands(
     for e in range(E):
         L: Rows = pos[e].tolist()
         V = frame_velocities(L, prev[e].tolist(), world.dt_s) if filtering else []
+        params = safety if steps_left is None else landing(safety, float(steps_left[e]), world)
         for i in range(n):
             bvx, bvy = rows[e * n + i]
-            cmd = command(bvx, bvy, neighbour_rows(i, L, V) if filtering else None, safety, world)
+            cmd = command(bvx, bvy, neighbour_rows(i, L, V) if filtering else None, params, world)
             if cmd is not None:
                 vel[e, i] = cmd.velocity
                 changed[e, i] = cmd.changed

@@ -259,5 +259,13 @@ class FrameRule:
 
     def team_velocities(self, pos: Array, pattern: Array, slots: IntArray) -> Array:
         """(E, n, 2) positions, (E, n, 2) pattern, (E, n) slots -> (E, n, 2) m/s."""
-        return frame_plan(pos, pattern, slots, self.travel_weight, self._world)
+        return self.team_plan(pos, pattern, slots)[0]
+
+    def team_plan(self, pos: Array, pattern: Array, slots: IntArray) -> tuple[Array, Array]:
+        """:meth:`team_velocities` and the plan's steps left K per team, (E,): the safety
+        filter's landing horizon (:func:`runtime.safety.landing`) reads K."""
+        target, k = plan_targets(pos, pattern, slots, self.travel_weight, self._world)
+        out: Array = (target - np.asarray(pos, dtype=np.float64)) / (k * self._world.dt_s)[
+            :, None, None]
+        return out, k
 

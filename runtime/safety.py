@@ -47,6 +47,22 @@ Choices, all documented here:
   (no RNG) and does nothing when the preferred velocity is already safe.
   Set the angle to 0 to recover plain RVO2 behaviour (the RVO2 examples
   perturb the preference randomly instead).
+* **Landing.** ORCA predicts every robot at constant velocity over its horizon,
+  so a robot running at full speed toward a slot 0.4 m from a neighbour's looks
+  bound for a collision that its landing would never reach; the filter slowed
+  or turned it, and since the farthest robot sets a synchronised team's pace,
+  the whole team lost a step each time (86-100 % of the steps the filter cost
+  `rule:frame-balanced` fell in the last third of an episode, docs/frontier.md).
+  A team on a synchronised plan (the plan observation's brains, the frame
+  rules) knows better: every robot computes the same steps left K from the
+  same poses, and after K steps every robot rests on its slot, the slots at
+  least the pattern spacing apart. So its horizon is ``min(tau, K dt)``
+  (:func:`landing`, ``OrcaParams.landing``): both robots of a pair use the same
+  one, so the reciprocal guarantee holds up to the landing, and the horizon
+  never falls below dt, which keeps the guarantee for the next step. A robot
+  whose brain leaves the plan meets a K that does not fall and keeps its
+  longer horizon. Measured (``benchmarks/frontier.py``): steps ratio of
+  ``rule:frame-balanced`` behind the filter 1.160 -> see docs/frontier.md.
 * **Infeasible crowds.** When the half-planes leave no velocity within the
   speed circle, RVO2's third linear program picks the velocity that violates
   them least; the 2R guarantee is then lost. In dense random crowds (30
@@ -56,9 +72,10 @@ Choices, all documented here:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -68,6 +85,7 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 __all__ = [
     "FilterResult",
     "OrcaParams",
+    "landing",
     "nearest_in_range",
     "orca_filter",
     "orca_filter_batch",
@@ -104,6 +122,32 @@ class OrcaParams:
     keep_right_rad: float = 0.2
     """Clockwise rotation of the preferred velocity when it violates an ORCA
     constraint (deadlock breaking, see the module docstring). 0 disables it."""
+    landing: bool = True
+    """For a team on a synchronised plan (plan brains, frame rules), the horizon is
+    at most the plan's time left, ``K dt`` (see "Landing" in the module docstring
+    and :func:`landing`)."""
+
+
+@functools.lru_cache(maxsize=64)
+def _with_horizon(params: OrcaParams, horizon_s: float) -> OrcaParams:
+    return replace(params, time_horizon_s=horizon_s)
+
+
+def landing(params: OrcaParams | None, steps_left: float | None,
+            world: WorldConfig = DEFAULT_WORLD) -> OrcaParams | None:
+    """The filter's parameters for a team whose plan has ``steps_left`` (K) steps to go.
+
+    With ``params.landing`` the horizon is ``min(time_horizon_s, max(K, 1) dt)``:
+    every robot of the team computes the same K from the same poses, and after
+    K steps all of them rest on their slots. ``steps_left`` None (a brain
+    without a plan) or ``params`` None leave ``params`` as they are.
+    """
+    if params is None or steps_left is None or not params.landing:
+        return params
+    horizon = max(float(steps_left), 1.0) * world.dt_s
+    if not horizon < params.time_horizon_s:
+        return params
+    return _with_horizon(params, horizon)
 
 
 @dataclass

@@ -53,8 +53,9 @@ import torch
 from runtime.decision import commands
 from runtime.errors import InputError
 from runtime.patterns import make_pattern, pattern_label
+from runtime.rules import plan_targets
 from runtime.safety import OrcaParams
-from runtime.types import F32Array
+from runtime.types import Array, F32Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.checkpoints import (
     TrainState,
@@ -178,9 +179,7 @@ def evaluate_policy(
     while not done.all():
         act = agent.act_team_mps(torch.from_numpy(obs.reshape(-1, bw.obs_dim)), cfg.n_robots)
         vel = act.numpy().reshape(episodes, cfg.n_robots, 2)
-        if cfg.train_safety:
-            vel = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world)[0]
-        res = bw.step(vel)
+        res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
         obs = res.obs
         ep = res.episode
         if ep is not None:
@@ -196,6 +195,20 @@ def evaluate_policy(
         collisions=int(collisions.sum()),
         formation_error=float(error.mean()),
     )
+
+
+def behind_filter(vel: Array, bw: BatchWorld) -> Array:
+    """The robots' safety filter between the brain and the world (``cfg.train_safety``):
+    :func:`runtime.decision.commands` with its defaults, the landing horizon of a plan
+    observation's team included, as ``eval`` and the robots run it."""
+    spec = bw.obs_spec
+    steps_left = None
+    if spec.name == "plan":
+        steps_left = plan_targets(bw.positions, bw.pattern, bw.slots, spec.travel_weight,
+                                  bw.world)[1]
+    out: Array = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world,
+                          steps_left)[0]
+    return out
 
 
 # ------------------------------------------------------------------- rollout
@@ -235,9 +248,7 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             logp = gaussian_logprob(a, mean, std)
             base = agent.base_mps(torch.from_numpy(obs.reshape(E * N, -1)))  # 0 unless residual
             vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
-            if cfg.train_safety:  # the robots' filter between the brain and the world
-                vel = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world)[0]
-            res = bw.step(vel)
+            res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
             reward = res.reward.copy()
             ep = res.episode
             if ep is not None:
