@@ -129,6 +129,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=d.keep_right_rad,
         help=f"deadlock breaking turn, 0 = plain RVO2 (default {d.keep_right_rad})",
     )
+    g.add_argument(
+        "--orca-no-landing",
+        action="store_true",
+        help="keep the full horizon at the end of a plan too (default: a team on a "
+        "synchronised plan filters with the plan's time left when it is shorter)",
+    )
     add_zenoh_arguments(parser)
     lg = parser.add_argument_group("logging")
     lg.add_argument("--json-logs", action="store_true", help="one JSON object per log line")
@@ -186,6 +192,7 @@ def config_from_args(
             max_neighbours=args.orca_max_neighbours,
             neighbour_dist_m=args.orca_neighbour_dist_m,
             keep_right_rad=args.orca_keep_right_rad,
+            landing=not args.orca_no_landing,
         )
     )
     cfg = RobotConfig(

@@ -291,6 +291,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=OrcaParams().time_horizon_s,
         help=f"ORCA's time horizon (default {OrcaParams().time_horizon_s}, as on a robot)",
     )
+    p.add_argument(
+        "--orca-no-landing",
+        action="store_true",
+        help="keep the full horizon at the end of a plan too (default: a team on a "
+        "synchronised plan filters with the plan's time left when shorter, as on a robot)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -331,7 +337,8 @@ def run(args: argparse.Namespace) -> int:
         n,
         args.episodes,
         seed=args.seed,
-        safety=OrcaParams(time_horizon_s=args.orca_time_horizon_s)
+        safety=OrcaParams(time_horizon_s=args.orca_time_horizon_s,
+                          landing=not args.orca_no_landing)
         if args.safety == "orca"
         else None,
         progress=False if args.no_progress else None,
