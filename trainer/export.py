@@ -115,39 +115,34 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
     x = chain(x, _linear_layers(agent.policy.trunk, "policy.trunk"), relu_last=True)
     v_max = const("v_max", agent.v_max_mps)
     mean = unary("Tanh", gemm(x, "policy.mean_head", agent.policy.mean_head), "mean.tanh")
-    if agent.residual and agent.on_plan:  # action = v_max * tanh(.) + v_max * obs[:, 2:4]
+    if agent.residual:  # action = v_max * tanh(.) + the rule's velocity, read off obs
+        lo, hi, part = (2, 4, "rule.pace") if agent.on_plan else (0, 2, "rule.slot")
         nodes += [
             helper.make_node("Mul", [mean, v_max], ["residual"], name="residual"),
             helper.make_node(
                 "Slice",
-                ["obs", const_i64("rule.start", [2]), const_i64("rule.end", [4]),
+                ["obs", const_i64("rule.start", [lo]), const_i64("rule.end", [hi]),
                  const_i64("rule.axes", [1])],
-                ["rule.pace"],
-                name="rule.pace",
+                [part],
+                name=part,
             ),
-            helper.make_node("Mul", ["rule.pace", const("rule.plan_vmax", agent.v_max_mps)],
-                             ["rule.out"], name="rule.out"),
-            helper.make_node("Add", ["residual", "rule.out"], ["action"], name="action"),
         ]
-    elif agent.residual:  # action = v_max * tanh(.) + clip_vmax(obs[:, 0:2] / dt)
-        nodes += [
-            helper.make_node("Mul", [mean, v_max], ["residual"], name="residual"),
-            helper.make_node(
-                "Slice",
-                ["obs", const_i64("rule.start", [0]), const_i64("rule.end", [2]),
-                 const_i64("rule.axes", [1])],
-                ["rule.slot"],
-                name="rule.slot",
-            ),
-            helper.make_node("Div", ["rule.slot", const("rule.dt", agent.dt_s)], ["rule.v"],
-                             name="rule.v"),
-            helper.make_node("ReduceL2", ["rule.v"], ["rule.speed"], axes=[1], keepdims=1,
-                             name="rule.speed"),
-            helper.make_node("Max", ["rule.speed", v_max], ["rule.den"], name="rule.den"),
-            helper.make_node("Div", [v_max, "rule.den"], ["rule.scale"], name="rule.scale"),
-            helper.make_node("Mul", ["rule.v", "rule.scale"], ["rule.out"], name="rule.out"),
-            helper.make_node("Add", ["residual", "rule.out"], ["action"], name="action"),
-        ]
+        if agent.on_plan:  # the plan's step: v_max * obs[:, 2:4]
+            nodes.append(helper.make_node(
+                "Mul", [part, const("rule.plan_vmax", agent.v_max_mps)], ["rule.out"],
+                name="rule.out"))
+        else:  # rule:assign: clip_vmax(obs[:, 0:2] / dt)
+            nodes += [
+                helper.make_node("Div", [part, const("rule.dt", agent.dt_s)], ["rule.v"],
+                                 name="rule.v"),
+                helper.make_node("ReduceL2", ["rule.v"], ["rule.speed"], axes=[1], keepdims=1,
+                                 name="rule.speed"),
+                helper.make_node("Max", ["rule.speed", v_max], ["rule.den"], name="rule.den"),
+                helper.make_node("Div", [v_max, "rule.den"], ["rule.scale"], name="rule.scale"),
+                helper.make_node("Mul", ["rule.v", "rule.scale"], ["rule.out"], name="rule.out"),
+            ]
+        nodes.append(helper.make_node("Add", ["residual", "rule.out"], ["action"],
+                                      name="action"))
     else:
         nodes.append(helper.make_node("Mul", [mean, v_max], ["action"], name="action"))
     sp = unary("Softplus", gemm(x, "policy.std_head", agent.policy.std_head), "std.softplus")

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from support import assert_same_episodes
 
 from runtime.brain import BrainManifest, load_brain
 from runtime.decision import Controller, commands, decide_batch
@@ -103,13 +104,7 @@ def test_a_zero_residual_plan_brain_is_rule_frame(safety: OrcaParams | None,
         d = ctl.decide(i, frames[0, 0], C)
         np.testing.assert_allclose(d.velocity, v_b[0, i], rtol=1e-6, atol=1e-6)
     # whole episodes: the same steps and success, and every robot lands on its slot
-    kw = {"seed": 77, "safety": safety, "progress": False}
-    a = evaluate_brain(brain, "circle", 8, 4, **kw)
-    b = evaluate_brain(rule, "circle", 8, 4, **kw)
-    assert a.episode_stats["steps"] == b.episode_stats["steps"]
-    np.testing.assert_allclose(a.episode_stats["travel_m"], b.episode_stats["travel_m"],
-                               rtol=1e-5)
-    assert a.success_rate == b.success_rate == 1.0
+    assert assert_same_episodes(brain, rule, safety) == 1.0
 
 
 def test_a_plan_brain_lands_exactly_on_its_slot(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 import torch
+from support import assert_same_episodes
 
 from runtime.brain import BrainManifest, RuleBrain, load_brain
 from runtime.decision import decide_batch
@@ -15,7 +16,6 @@ from runtime.observation import ObservationSpec
 from runtime.patterns import make_pattern
 from runtime.safety import OrcaParams
 from trainer.config import TrainConfig
-from trainer.evaluate import evaluate_brain
 from trainer.export import agent_from_onnx, build_onnx, write_brain
 from trainer.networks import Agent
 
@@ -61,13 +61,7 @@ def test_zero_residual_brain_equals_the_rule_number_for_number(
     # float32 in the graph, float64 in the rule: equal to float32 rounding
     np.testing.assert_allclose(v_b, v_r, rtol=1e-6, atol=1e-6)
     # whole episodes: the same steps, travel and success on the same starts
-    kw = {"seed": 77, "safety": safety, "progress": False}
-    a = evaluate_brain(brain, "circle", 8, 4, **kw)
-    b = evaluate_brain(rule, "circle", 8, 4, **kw)
-    assert a.episode_stats["steps"] == b.episode_stats["steps"]
-    np.testing.assert_allclose(a.episode_stats["travel_m"], b.episode_stats["travel_m"],
-                               rtol=1e-5)
-    assert a.success_rate == b.success_rate
+    assert_same_episodes(brain, rule, safety)
 
 
 def test_the_graph_adds_the_learned_part_and_round_trips(tmp_path: Path) -> None:
