@@ -116,12 +116,12 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
     v_max = const("v_max", agent.v_max_mps)
     mean = unary("Tanh", gemm(x, "policy.mean_head", agent.policy.mean_head), "mean.tanh")
     if agent.residual:  # action = v_max * tanh(.) + the rule's velocity, read off obs
-        lo, hi, part = (2, 4, "rule.pace") if agent.on_plan else (0, 2, "rule.slot")
+        first, end, part = (2, 4, "rule.pace") if agent.on_plan else (0, 2, "rule.slot")
         nodes += [
             helper.make_node("Mul", [mean, v_max], ["residual"], name="residual"),
             helper.make_node(
                 "Slice",
-                ["obs", const_i64("rule.start", [lo]), const_i64("rule.end", [hi]),
+                ["obs", const_i64("rule.start", [first]), const_i64("rule.end", [end]),
                  const_i64("rule.axes", [1])],
                 [part],
                 name=part,
