@@ -458,7 +458,7 @@ def launch_once(run: WorldRun, pattern: str, robots: int, seed: int, logs: Path)
     log = logs / f"fig6-{run.tag}-{pattern}.mcap"
     cmd = [sys.executable, "-m", "patternrl.cli", "launch", "--robots", str(robots),
            "--patterns", pattern, "--brains", run.brain, "--safety", run.safety,
-           "--seed", str(seed), "--record", str(log), "--json", "--no-plot"]
+           "--seed", str(seed), "--record", str(log), "--force", "--json", "--no-plot"]
     t0 = time.perf_counter()
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     wall = time.perf_counter() - t0
