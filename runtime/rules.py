@@ -144,6 +144,10 @@ def frame_plan(
     return out
 
 
+SUPPORT_SLACK_M: Final = 1e-4
+"""How far outside the last support's circle a displacement may lie and the support be kept
+(:class:`PlanFrame`), metres."""
+
 SMALL_TEAM: Final = 24
 """Team size from which :class:`PlanFrame` works on arrays (below it, on plain floats)."""
 
@@ -158,6 +162,11 @@ class PlanFrame:
     circle of a subset is never larger, and the smallest one is unique), which
     under the plan holds step after step (the displacements shrink
     homothetically); otherwise Welzl's algorithm runs and finds the new support.
+    A displacement at most :data:`SUPPORT_SLACK_M` outside the old support's circle
+    keeps it: a team holding its pattern jitters by tens of micrometres (a learned
+    brain's small residual), which would otherwise re-solve every step, and the
+    frame then moves by at most that slack (0.1 mm), far below the formed
+    tolerance (25 mm).
     """
 
     def __init__(self) -> None:
@@ -176,7 +185,7 @@ class PlanFrame:
         if self._support and max(self._support) < n:
             c, r = _min_enclosing_circle(d[self._support])
             gap = np.hypot(d[:, 0] - c[0], d[:, 1] - c[1])
-            if (gap <= r * (1 + 1e-12) + 1e-12).all():
+            if (gap <= r * (1 + 1e-12) + SUPPORT_SLACK_M).all():
                 centre = c
         if centre is None:
             centre, r = _min_enclosing_circle(d)
@@ -205,7 +214,7 @@ class PlanFrame:
         if self._support and max(self._support) < n:
             c, r = _min_enclosing_circle([d[j] for j in self._support])
             cx, cy = float(c[0]), float(c[1])
-            lim = r * (1 + 1e-12) + 1e-12
+            lim = r * (1 + 1e-12) + SUPPORT_SLACK_M
             found = True
             for x, y in d:
                 if hypot(x - cx, y - cy) > lim:
