@@ -53,7 +53,6 @@ import torch
 from runtime.decision import commands
 from runtime.errors import InputError
 from runtime.patterns import make_pattern, pattern_label
-from runtime.rules import plan_targets
 from runtime.safety import OrcaParams
 from runtime.types import Array, F32Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -201,11 +200,7 @@ def behind_filter(vel: Array, bw: BatchWorld) -> Array:
     """The robots' safety filter between the brain and the world (``cfg.train_safety``):
     :func:`runtime.decision.commands` with its defaults, the landing horizon of a plan
     observation's team included, as ``eval`` and the robots run it."""
-    spec = bw.obs_spec
-    steps_left = None
-    if spec.name == "plan":
-        steps_left = plan_targets(bw.positions, bw.pattern, bw.slots, spec.travel_weight,
-                                  bw.world)[1]
+    steps_left = bw.plan_steps_left if bw.obs_spec.name == "plan" else None  # as observed
     out: Array = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world,
                           steps_left)[0]
     return out

@@ -218,6 +218,7 @@ class BatchWorld:
         self._potentials: Array = np.zeros((N, E))  # the assignment proof's warm start
         self._dist: Array = np.zeros((N, E))  # |position - slot|
         self._travel: Array = np.zeros((N, E))
+        self.plan_steps_left: Array = np.ones(E)  # plan observation: each team's K, as observed
         # shared "no contact this step" results, read-only so they can be handed out
         self._no_hits: IntArray = np.zeros((N, E), dtype=np.int64)
         self._no_collisions: IntArray = np.zeros(E, dtype=np.int64)
@@ -429,7 +430,7 @@ class BatchWorld:
                 slots = self._slots.T if ids is None else self._slots[:, ids].T
                 T, K = plan_targets(self.frames[sel, 0], self.pattern[sel], slots,
                                     spec.travel_weight, self.world)
-                G = T.transpose(2, 1, 0)
+                G, self.plan_steps_left[sel] = T.transpose(2, 1, 0), K
             if self.compiled:
                 obs = _kernels.observe_general(X, X_prev, G, k, self.world)
             else:

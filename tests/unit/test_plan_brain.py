@@ -154,11 +154,12 @@ def test_training_behind_the_filter_moves_robots_by_the_filtered_command() -> No
     bw = BatchWorld(3, 12, "random", SPEC, seed=11)
     obs0, pos0, prev0 = bw.observe(), bw.positions.copy(), bw.prev_positions.copy()
     slots0 = bw.slots.copy()
+    k = plan_targets(pos0, bw.pattern, slots0, W)[1]  # the landing horizon's steps left
+    np.testing.assert_array_equal(bw.plan_steps_left, k)  # what the world observed
     out = collect_rollout(agent, bw, obs0, cfg, torch.Generator().manual_seed(0), 1.0)
     with torch.no_grad():
         base = agent.base_mps(torch.from_numpy(obs0.reshape(36, -1))).numpy()
     vel = (out.batch.actions.numpy() + base).reshape(3, 12, 2)
-    k = plan_targets(pos0, bw.pattern, slots0, W)[1]  # the landing horizon's steps left
     filtered = commands(vel, pos0, prev0, OrcaParams(), DEFAULT_WORLD, k)[0]
     np.testing.assert_allclose(bw.positions, pos0 + filtered * DEFAULT_WORLD.dt_s, atol=1e-6)
 
