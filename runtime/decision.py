@@ -9,7 +9,7 @@ A decision is a list of named steps, each with one implementation:
 2. **observe** -- :func:`runtime.observation.observe`, the builder the
    brain's spec names, for every robot or for the robot's own row.
 3. **act** -- :func:`brain_velocities`: the brain's velocity per row (m/s).
-   A *team rule* (a brain with ``team_velocities``, e.g. ``rule:frame``,
+   A *team rule* (a brain with ``team_plan``, e.g. ``rule:frame``,
    :mod:`runtime.rules`) skips step 2 and plans from what every robot sees
    anyway -- all positions, the pattern and the shared assignment of step 1 --
    with one function that both paths call on a batch (the robot on a batch of
@@ -429,7 +429,7 @@ class Controller:
             slots = self._assign(pos - cen)
             self._prev_slots = slots
             slot = int(slots[i])
-            team = getattr(brain, "team_plan", None) or getattr(brain, "team_velocities", None)
+            team = getattr(brain, "team_plan", None)
             L = self._L
             rows = spec.needs_slots  # the general layout: general or plan
             V = self._velocities() if rows or team is not None else []
@@ -461,10 +461,8 @@ class Controller:
             try:
                 if team is not None:
                     c = np.asarray(self._pattern_obj, dtype=np.float64)
-                    out = team(pos[None], c[None], slots[None])
-                    if isinstance(out, tuple):  # a plan: its steps left set the landing
-                        out, k = out
-                        safety = landing(safety, float(k[0]), self.world)
+                    out, k = team(pos[None], c[None], slots[None])
+                    safety = landing(safety, float(k[0]), self.world)  # the plan's steps left
                     bvx, bvy = np.asarray(out)[0, i].tolist()
                 elif obs is not None:
                     bvx, bvy = brain_velocities(brain, obs)[0]
@@ -518,12 +516,10 @@ def decide_batch(
         raise ValueError(f"brain spec '{spec.name}' ({spec.n_robots} robots) cannot drive {n}")
     # 1. assign
     slots = assign_slots_batch(pos, C, prev_slots)
-    team = getattr(brain, "team_plan", None) or getattr(brain, "team_velocities", None)
+    team = getattr(brain, "team_plan", None)
     steps_left: Array | None = None  # a plan's steps left per team: the landing horizon
     if team is not None:  # a team rule: steps 2-3 from the poses
-        out = team(pos, C, slots)
-        if isinstance(out, tuple):
-            out, steps_left = out
+        out, steps_left = team(pos, C, slots)
         act: Rows = np.asarray(out, dtype=np.float64).reshape(E * n, 2).tolist()
     else:
         # 2. observe (every row)

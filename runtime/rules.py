@@ -39,7 +39,7 @@ same poses (:func:`runtime.decision.decide_batch` and
 
 Observation. A team rule reads what every robot already observes (all the
 team's positions), the pattern and the shared assignment, through the decision
-pipeline's ``team_velocities`` hook instead of ``act(obs)``; its ``act`` on a
+pipeline's ``team_plan`` hook instead of ``act(obs)``; its ``act`` on a
 general observation row is ``rule:assign``'s (the only thing one row allows).
 """
 
@@ -62,6 +62,7 @@ __all__ = [
     "FrameRule",
     "PlanFrame",
     "frame_plan",
+    "plan_step",
     "plan_targets",
     "straight_to_slot",
 ]
@@ -139,9 +140,20 @@ def frame_plan(
     Arguments as :func:`plan_targets`. Returns (E, n, 2) m/s, each of norm
     <= v_max; all robots of a team land on their slots at the same step.
     """
+    return plan_step(pos, pattern, slots, travel_weight, world)[0]
+
+
+def plan_step(
+    pos: Array,
+    pattern: Array,
+    slots: IntArray,
+    travel_weight: float,
+    world: WorldConfig = DEFAULT_WORLD,
+) -> tuple[Array, Array]:
+    """:func:`frame_plan`'s velocities (E, n, 2) m/s and the plan's steps left K (E,)."""
     target, k = plan_targets(pos, pattern, slots, travel_weight, world)
     out: Array = (target - np.asarray(pos, dtype=np.float64)) / (k * world.dt_s)[:, None, None]
-    return out
+    return out, k
 
 
 SUPPORT_SLACK_M: Final = 1e-4
@@ -240,7 +252,7 @@ class PlanFrame:
 class FrameRule:
     """A team rule (``rule:frame``, ``-balanced``, ``-travel``): :func:`frame_plan` in the pipeline.
 
-    ``team_velocities(pos, pattern, slots)`` -> (E, n, 2) m/s is what
+    ``team_plan(pos, pattern, slots)`` -> ((E, n, 2) m/s, (E,) steps left) is what
     :mod:`runtime.decision` calls; ``act`` (a general observation row ->
     ``rule:assign``'s velocity) is only the per-row fallback of the Brain
     interface.
@@ -266,15 +278,9 @@ class FrameRule:
     def act(self, obs: NDArray[Any]) -> Array:
         return straight_to_slot(np.asarray(obs), self._world)
 
-    def team_velocities(self, pos: Array, pattern: Array, slots: IntArray) -> Array:
-        """(E, n, 2) positions, (E, n, 2) pattern, (E, n) slots -> (E, n, 2) m/s."""
-        return self.team_plan(pos, pattern, slots)[0]
-
     def team_plan(self, pos: Array, pattern: Array, slots: IntArray) -> tuple[Array, Array]:
-        """:meth:`team_velocities` and the plan's steps left K per team, (E,): the safety
-        filter's landing horizon (:func:`runtime.safety.landing`) reads K."""
-        target, k = plan_targets(pos, pattern, slots, self.travel_weight, self._world)
-        out: Array = (target - np.asarray(pos, dtype=np.float64)) / (k * self._world.dt_s)[
-            :, None, None]
-        return out, k
+        """(E, n, 2) positions, (E, n, 2) pattern, (E, n) slots -> every robot's velocity
+        (E, n, 2) m/s and the plan's steps left K per team (E,), which the safety filter's
+        landing horizon reads (:func:`runtime.safety.landing`)."""
+        return plan_step(pos, pattern, slots, self.travel_weight, self._world)
 
