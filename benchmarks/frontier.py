@@ -195,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
              f"seed {args.seed}")
     if args.plot != "none":
         plot(Path(args.plot), frontier,
-             {k: (v["steps_ratio"], v["travel_ratio"]) for k, v in summary.items()}, title)
+             {(k if own[k] is None else f"{k} (its {own[k]} cases)"):
+              (v["steps_ratio"], v["travel_ratio"]) for k, v in summary.items()}, title)
     if args.json:
         print(json.dumps({
             "episodes": episodes, "seed": args.seed, "teams": list(teams),
