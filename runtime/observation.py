@@ -1,6 +1,6 @@
 """Observation builders: the one copy that the trainer and every robot call.
 
-Two specs, each a pure numpy function over a batch (leading axes free):
+Three specs, each a pure numpy function over a batch (leading axes free):
 
 ``paper`` (version 1, fixed n) -- the paper's observation
     The other robots' positions relative to the robot, in three consecutive
@@ -32,9 +32,10 @@ Two specs, each a pure numpy function over a batch (leading axes free):
     fewest-steps frame and the team's centroid, a frame that does not drift as
     the team moves), and columns 2:4 hold that plan's step in units of v_max:
     ``slot vector / (K v_max dt)`` with K the steps left to the team's farthest
-    robot (:func:`plan_pace`). ``v_max * columns 2:4`` is ``rule:frame``'s
-    velocity (norm <= v_max): every robot lands on its slot at the same step,
-    exactly, when it is followed. A brain acts relative to it
+    robot (:func:`plan_pace`). ``v_max * columns 2:4`` is the frame rule's
+    velocity at the spec's ``travel_weight`` (``rule:frame-balanced`` at 0.25;
+    norm <= v_max): every robot lands on its slot at the same step, exactly,
+    when it is followed. A brain acts relative to it
     (``TrainConfig.residual``), so it starts at the rule and lands exactly.
 
 Velocities are estimated from consecutive frames, as a robot's own sensing
