@@ -22,19 +22,25 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from support import Seen, free_port, stop_processes, wait_for
+from support import (
+    Seen,
+    forge_and_fence,
+    forged_command,
+    forged_keys,
+    free_port,
+    stop_processes,
+    wait_for,
+)
 
 from runtime import keys
 from runtime.identity import load_identity
-from runtime.messages import Command, encode_command
 from runtime.zenoh_session import ZenohSetupError, make_config, open_config
 from sim_bridge.router import RouterProcess
 from sim_bridge.swarm_keys import create_swarm_keys
 
 SWARM = "star"
 ROOT = Path(__file__).resolve().parents[2]
-FORGED_KEYS = (keys.cmd_key(SWARM, 2), keys.status_key(SWARM, 2), keys.pose_key(SWARM, 2),
-               keys.brain_key(SWARM), keys.pattern_key(SWARM))
+FORGED_KEYS = forged_keys(SWARM)
 pytestmark = pytest.mark.timeout(180)
 
 
@@ -60,8 +66,7 @@ def client(keys_dir: Path | None, name: str | None, endpoint: str) -> zenoh.Sess
     return open_config(make_config("client", [endpoint], [], identity=ident))
 
 
-def cmd(robot_id: int, step: int, brain: str = "forged") -> bytes:
-    return encode_command(Command(robot_id, step, 1.0, 0.0, brain, False, 0.0, 0.0))
+cmd = forged_command
 
 
 def forge_then_fence(attacker: zenoh.Session, seen: Seen) -> list[object]:
@@ -77,16 +82,7 @@ def forge_then_fence(attacker: zenoh.Session, seen: Seen) -> list[object]:
         return seen.has(keys.cmd_key(SWARM, 1), hello)
 
     wait_for(heard, 30, "the world to hear robot 1 through the router", poll=0.05)
-    for step in range(3):
-        for key in FORGED_KEYS:
-            attacker.put(key, cmd(2, step))
-    tokens = [attacker.liveliness().declare_token(keys.alive_key(SWARM, 77)),
-              attacker.liveliness().declare_token(keys.alive_key(SWARM, 1))]
-    fence = cmd(1, 999, "fence")
-    attacker.put(keys.cmd_key(SWARM, 1), fence)
-    wait_for(lambda: seen.has(keys.cmd_key(SWARM, 1), fence), 20, "robot 1's own command")
-    wait_for(lambda: "1" in seen.alive, 20, "robot 1's own liveliness token")
-    return tokens
+    return forge_and_fence(attacker, seen, SWARM, (77,))
 
 
 def test_the_router_relays_robot_1s_keys_only(router: RouterProcess, swarm_keys: Path) -> None:

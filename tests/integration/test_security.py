@@ -19,11 +19,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from support import Seen, free_port, wait_for
+from support import Seen, forge_and_fence, forged_command, forged_keys, free_port, wait_for
 
 from runtime import keys
 from runtime.identity import load_identity
-from runtime.messages import Command, encode_command
 from runtime.zenoh_session import make_config, open_config
 from sim_bridge.log_reader import read_log
 from sim_bridge.swarm_keys import create_swarm_keys
@@ -45,31 +44,13 @@ def session(keys_dir: Path | None, name: str | None, connect: list[str],
     return open_config(make_config("peer", connect, listen, identity=ident))
 
 
-def cmd(robot_id: int, step: int, brain: str = "forged") -> bytes:
-    return encode_command(Command(robot_id, step, 1.0, 0.0, brain, False, 0.0, 0.0))
-
-
-FORGED_KEYS = (keys.cmd_key(SWARM, 2), keys.status_key(SWARM, 2), keys.pose_key(SWARM, 2),
-               keys.brain_key(SWARM), keys.pattern_key(SWARM))
+cmd = forged_command
+FORGED_KEYS = forged_keys(SWARM)
 
 
 def attack_and_fence(attacker: zenoh.Session, seen: Seen) -> list[object]:
-    """Robot 1 forges everything it has no right to, then publishes its own key and token.
-
-    Messages of one link arrive in order, so once the world has the fence it has
-    had every forgery that was ever going to arrive.
-    """
-    for step in range(3):
-        for key in FORGED_KEYS:
-            attacker.put(key, cmd(2, step))
-    tokens = [attacker.liveliness().declare_token(keys.alive_key(SWARM, 77)),
-              attacker.liveliness().declare_token(keys.alive_key(SWARM, keys.WORLD_ID)),
-              attacker.liveliness().declare_token(keys.alive_key(SWARM, 1))]
-    fence = cmd(1, 999, "fence")
-    attacker.put(keys.cmd_key(SWARM, 1), fence)
-    wait_for(lambda: seen.has(keys.cmd_key(SWARM, 1), fence), 20, "robot 1's own command")
-    wait_for(lambda: "1" in seen.alive, 20, "robot 1's own liveliness token")
-    return tokens
+    """Robot 1 forges what it has no right to, the world's liveliness token among them."""
+    return forge_and_fence(attacker, seen, SWARM, (77, keys.WORLD_ID))
 
 
 def join(attacker: zenoh.Session, seen: Seen) -> None:
