@@ -202,6 +202,8 @@ class OnnxBrain:
         self._one = np.zeros((1, spec.dim), dtype=np.float32)  # the robot's reused input
         self._feed = {INPUT_NAME: self._one}
         self._run = self._fast_run(session)
+        self._out1 = np.zeros((1, 2), dtype=np.float32)  # act_input's output, bound once
+        self._run_bound = self._bound_run(session)
 
     def _fast_run(self, session: ort.InferenceSession) -> Any:
         """``session.run`` without its Python wrapper when the binding allows (~4 us less).
@@ -228,6 +230,36 @@ class OnnxBrain:
             pass
         return public
 
+    def _bound_run(self, session: ort.InferenceSession) -> Any:
+        """A run of the one-row input into :attr:`_out1` with both bound once (onnxruntime's
+        IO binding: no feed dictionary, no output array a call; ~2 us less), or None where
+        the binding is missing or answers differently from :meth:`act`."""
+        raw = getattr(session, "_sess", None)
+        if raw is None or not hasattr(ort, "RunOptions"):
+            return None
+        try:
+            io = session.io_binding()
+            io.bind_cpu_input(INPUT_NAME, self._one)
+            io.bind_output(ACTION_NAME, "cpu", 0, np.float32, [1, 2], self._out1.ctypes.data)
+            bound, options = io._iobinding, ort.RunOptions()
+
+            def run() -> None:
+                raw.run_with_iobinding(bound, options)
+
+            saved = self._one.copy()
+            try:
+                for probe in (0.0, 0.5):  # the bound run reads the row and writes the output
+                    self._one.fill(probe)
+                    run()
+                    want = np.asarray(self._run(self._outputs, self._feed)[0])
+                    if not np.array_equal(self._out1, want, equal_nan=True):
+                        return None
+            finally:
+                self._one[:] = saved
+            return run
+        except Exception:
+            return None
+
     def act(self, obs: NDArray[Any]) -> Array:
         if obs.shape[0] == 1:
             self._one[0] = obs[0]  # cast in place: no allocation on the robot's path
@@ -236,6 +268,22 @@ class OnnxBrain:
             feed = {INPUT_NAME: np.ascontiguousarray(obs, dtype=np.float32)}
         out = self._run(self._outputs, feed)[0]
         return np.asarray(out, dtype=np.float64)
+
+    @property
+    def input_row(self) -> NDArray[np.float32]:
+        """The reused (dim,) input of :meth:`act_input`: the robot writes its row here."""
+        row: NDArray[np.float32] = self._one[0]
+        return row
+
+    def act_input(self) -> tuple[float, float]:
+        """The velocity (m/s) for the row in :attr:`input_row`: :meth:`act` of one row,
+        with nothing converted or allocated on the way in."""
+        if self._run_bound is None:
+            vx, vy = self._run(self._outputs, self._feed)[0][0].tolist()
+        else:
+            self._run_bound()
+            vx, vy = self._out1[0].tolist()
+        return float(vx), float(vy)
 
     @property
     def session(self) -> ort.InferenceSession:

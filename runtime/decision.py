@@ -65,6 +65,7 @@ from runtime.formation import (
     linear_sum_assignment,
     slot_positions,
 )
+from runtime.kernel import use_kernel
 from runtime.observation import (
     frame_velocities,
     general_row,
@@ -252,6 +253,20 @@ def _near_in_order(
 # ------------------------------------------------------------------ one robot
 
 
+class _Buffers:
+    """The compiled path's arrays for one team size and observation width, reused."""
+
+    __slots__ = ("d2", "dim", "keys", "n", "obs", "order", "vel")
+
+    def __init__(self, n: int, dim: int) -> None:
+        self.n, self.dim = n, dim
+        self.vel = np.zeros((n, 2))  # every robot's velocity estimate (m/s)
+        self.order = np.zeros(n, dtype=np.int64)  # robot ids nearest first
+        self.d2 = np.zeros(n)  # squared distances to this robot (m^2)
+        self.keys = np.zeros((n, 2))  # the sort's scratch
+        self.obs = np.zeros((1, dim))  # the row, for a brain without its own input
+
+
 class Controller:
     """One robot's decision maker: the pipeline's steps on its own row, with their state.
 
@@ -265,10 +280,15 @@ class Controller:
         brain: Brain,
         world: WorldConfig = DEFAULT_WORLD,
         safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
+        compiled: bool | None = None,
     ) -> None:
+        """``compiled``: decide with :mod:`runtime.kernel` (None: when it is built; True
+        requires it); False runs the Python reference throughout."""
         self.world = world
         self.safety = safety
         self._brain = brain
+        self._kernel = use_kernel(compiled)
+        self._bufs: _Buffers | None = None
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
         self._ccx: Array = np.zeros(0)
@@ -291,12 +311,11 @@ class Controller:
         """Forget the history: frames and previous assignment."""
         self._n = -1
         self._frames: list[Array] = []  # positions at t, t-1, t-2 (own copies)
-        self._L: Rows = []  # positions at t, plain floats
         self._last_step: int | None = None
         self._prev_slots: IntArray | None = None
         self._duals: Array = np.zeros(0)  # the assignment proof's slot potentials (m^2)
         self._proof_wait = 0  # steps until the proof is tried again after it failed
-        self._plan = PlanFrame()  # the plan observation's frame, its support kept
+        self._plan = PlanFrame(self._kernel is not None)  # the plan's frame, support kept
 
     @property
     def previous_slots(self) -> IntArray | None:
@@ -336,7 +355,6 @@ class Controller:
         else:
             f = self._frames
             self._frames = [pos, f[0], f[1]]
-        self._L = pos.tolist()
         self._last_step = step
 
     def _velocities(self) -> Rows:
@@ -345,11 +363,12 @@ class Controller:
         v: Rows = ((self._frames[0] - self._frames[1]) / self.world.dt_s).tolist()
         return v
 
-    def _assign(self, Pc: Array) -> IntArray:
-        """:func:`runtime.formation.assign_centred` of the centred team ``Pc`` (n, 2) against
-        the cached pattern, with its hysteresis: the same cost, bit for bit, built from
-        contiguous columns ((n, n) twice instead of one (n, n, 2) array: 4x less time at
-        n = 100), the same solver and the same rule.
+    def _assign(self, pos: Array) -> tuple[IntArray, float, float]:
+        """:func:`runtime.formation.assign_centred` of the team ``pos`` (n, 2) against the
+        cached pattern, with its hysteresis; also the team's centroid (cx, cy). The same
+        cost, bit for bit, built from contiguous columns ((n, n) twice instead of one
+        (n, n, 2) array: 4x less time at n = 100) or by the compiled kernel (one call
+        instead of eight numpy ones), the same solver and the same rule.
 
         From :data:`PROOF_FROM` robots the previous assignment is first checked with
         the assignment proof (:func:`runtime.assignment.certify_team`, its slot
@@ -357,15 +376,21 @@ class Controller:
         the rule would keep it whatever the solver said, so it is kept unsolved (as
         :func:`runtime.formation.assign_slots_env_last` does for the training world).
         """
-        n = len(Pc)
+        n = len(pos)
         if self._cost.shape[0] != n:  # the team's buffers: no (n, n) allocation a step
             self._cost, self._work = np.empty((n, n)), np.empty((n, n))
         dx, dy = self._cost, self._work
-        np.subtract(Pc[:, 0:1], self._ccx, out=dx)  # (n, n): robot i to point j
-        dx *= dx
-        np.subtract(Pc[:, 1:2], self._ccy, out=dy)
-        dy *= dy
-        dx += dy
+        if self._kernel is not None:
+            cx, cy = self._kernel.centred_cost(pos, self._ccx, self._ccy, dx)
+        else:
+            cen = np.add.reduce(pos, 0) / n  # == pos.mean(0), without mean's Python overhead
+            cx, cy = cen.tolist()
+            Pc = pos - cen
+            np.subtract(Pc[:, 0:1], self._ccx, out=dx)  # (n, n): robot i to point j
+            dx *= dx
+            np.subtract(Pc[:, 1:2], self._ccy, out=dy)
+            dy *= dy
+            dx += dy
         prev = self._prev_slots
         if prev is not None and len(prev) == n and n >= PROOF_FROM:
             if self._duals.shape[0] != n:
@@ -377,17 +402,73 @@ class Controller:
                 old = float(dx[np.arange(n), prev].sum())
                 tol = (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2) * (0.5 / n)
                 if certify_team(dx, prev, tol, self._duals, work=dy):
-                    return prev
+                    return prev, cx, cy
                 self._proof_wait = PROOF_RETRY_STEPS
                 self._duals[:] = 0.0  # zeros: "every robot is nearest its own slot"
         cols: IntArray = linear_sum_assignment(dx)[1]
         if prev is not None and len(prev) == len(cols) and prev.tolist() != cols.tolist():
             rows = np.arange(len(cols))
             if keeps_previous(dx[rows, cols].sum(), dx[rows, prev].sum()):
-                return prev
-        return cols
+                return prev, cx, cy
+        return cols, cx, cy
 
     # -------------------------------------------------------------- decide
+
+    def _decide_compiled(self, t0: int, i: int, pos: Array, cx: float, cy: float,
+                         slots: IntArray, safety: OrcaParams | None) -> Decision:
+        """Steps 2-4 of :meth:`decide` for the general and plan observations with the
+        compiled kernel (:mod:`runtime.kernel`): the same numbers as the Python steps."""
+        kern = self._kernel
+        assert kern is not None
+        brain, world = self._brain, self.world
+        spec = brain.spec
+        n = pos.shape[0]
+        slot = int(slots[i])
+        reach = world.v_max_mps * world.dt_s
+        b = self._bufs
+        if b is None or b.n != n or b.dim != spec.dim:
+            b = self._bufs = _Buffers(n, spec.dim)
+        # 2. observe: the slot (in the plan's frame), the neighbour order, the row
+        steps_left = 0.0
+        if spec.name == "plan":
+            pts = self._cc[slots]
+            tx, ty, steps_left = self._plan.solve_floats(pos, pts, spec.travel_weight, world)
+            qx, qy = pts[i].tolist()
+            sx, sy = qx + tx, qy + ty
+            safety = landing(safety, steps_left, world)
+        else:
+            qx, qy = self._cc[slot].tolist()
+            sx, sy = qx + cx, qy + cy  # == slot_positions(...)[i]
+        direct: Array | None = getattr(brain, "input_row", None)  # onnxruntime's own input
+        out = b.obs[0] if direct is None else direct
+        kern.row(pos, self._frames[1], i, sx, sy, spec.k_neighbours, reach, world.dt_s,
+                 steps_left * reach, b.vel, b.order, b.d2, b.keys, out)
+        # 3. act
+        error = ""
+        bvx = bvy = 0.0
+        try:
+            if direct is not None:
+                bvx, bvy = brain.act_input()  # type: ignore[attr-defined]
+            else:
+                bvx, bvy = brain_velocities(brain, b.obs)[0]
+        except Exception:  # a brain must never take the loop down
+            error = ERR_BRAIN
+        if not error and not (math.isfinite(bvx) and math.isfinite(bvy)):
+            error = ERR_NONFINITE
+        # 4. command
+        if error:
+            us = (time.perf_counter_ns() - t0) / 1000.0
+            return Decision((0.0, 0.0), (bvx, bvy), False, 0.0, us, error, slot)
+        vx, vy = clamp_speed(bvx, bvy, world.v_max_mps)
+        changed, change = False, 0.0
+        if safety is not None:
+            reach_m = safety.neighbour_dist_m
+            vx, vy, changed, change = kern.orca(
+                vx, vy, pos, b.vel, i, b.order, b.d2, safety.max_neighbours, reach_m * reach_m,
+                2.0 * (world.radius_m + safety.radius_margin_m), safety.time_horizon_s,
+                world.dt_s, safety.keep_right_rad, world.v_max_mps)
+        us = (time.perf_counter_ns() - t0) / 1000.0
+        return Decision((vx, vy), (bvx, bvy), changed, change, us, "", slot)
 
     def decide(
         self,
@@ -425,13 +506,14 @@ class Controller:
             error = ERR_TEAM
         else:
             # 1. assign
-            cen = np.add.reduce(pos, 0) / n  # == pos.mean(0), without mean's Python overhead
-            slots = self._assign(pos - cen)
+            slots, cx, cy = self._assign(pos)
             self._prev_slots = slots
             slot = int(slots[i])
             team = getattr(brain, "team_plan", None)
-            L = self._L
             rows = spec.needs_slots  # the general layout: general or plan
+            if self._kernel is not None and team is None and rows:
+                return self._decide_compiled(t0, i, pos, cx, cy, slots, safety)
+            L: Rows = pos.tolist()
             V = self._velocities() if rows or team is not None else []
             near = None  # the safety filter's neighbours, when the observation found them
             # 2. observe (own row): the general builder's one-robot kernel on plain
@@ -444,7 +526,8 @@ class Controller:
                     t, steps_left = self._plan.solve(pos, pts, spec.travel_weight, self.world)
                     sx, sy = (pts[i] + t).tolist()
                 else:
-                    sx, sy = (self._cc[slot] + cen).tolist()  # == slot_positions(...)[i]
+                    qx, qy = self._cc[slot].tolist()
+                    sx, sy = qx + cx, qy + cy  # == slot_positions(...)[i]
                 order, d2 = neighbour_order(i, L, pos)
                 row = general_row(i, L, V, (sx, sy), spec.k_neighbours, self.world, order=order)
                 if steps_left:  # plan_pace on the row's floats

@@ -89,7 +89,7 @@ from runtime.safety import OrcaParams
 from runtime.swap_worker import SwapReply, SwapWorker
 from runtime.team_pattern import TeamPattern
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-from runtime.zenoh_session import ZenohSetupError, open_session_from_args
+from runtime.zenoh_session import ZenohSetupError, direct, open_session_from_args
 
 # add_arguments and run: the sub-command interface patternrl.cli loads from this module
 __all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
@@ -170,7 +170,7 @@ class Robot:
         self._status_pub = z.enter_context(
             s.declare_publisher(keys.status_key(sw, self.id), express=True)
         )
-        z.enter_context(s.declare_subscriber(keys.poses_key(sw), self._on_poses))
+        z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
         # per-robot poses until the first all-poses message (then undeclared: O(1) a step)
         self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
         z.callback(self._drop_pose_keys)

@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 
 from runtime.brain_manifest import BrainManifest
 from runtime.formation import _min_enclosing_circle
+from runtime.kernel import use_kernel
 from runtime.observation import ObservationSpec
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -181,14 +182,22 @@ class PlanFrame:
     tolerance (25 mm).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, compiled: bool | None = None) -> None:
+        """``compiled``: solve with :mod:`runtime.kernel` (None: when it is built; True
+        requires it); False runs the Python reference."""
         self._support: list[int] = []
+        self._kernel = use_kernel(compiled)
+        self._sup = np.zeros(4, dtype=np.int64)  # the kernel's support: [count, j0, j1, j2]
+        self._d = np.zeros((0, 2))  # the kernel's displacements (scratch)
 
     def solve(self, pos: Array, slot_points: Array, travel_weight: float,
               world: WorldConfig = DEFAULT_WORLD) -> tuple[Array, float]:
         """``pos`` (n, 2) positions, ``slot_points`` (n, 2) each robot's pattern point (any
         translation of the pattern). Returns (the frame ``t`` (2,), steps left ``K``):
         robot j's slot is ``slot_points[j] + t``."""
+        if self._kernel is not None:
+            tx, ty, k = self.solve_floats(pos, slot_points, travel_weight, world)
+            return np.array([tx, ty]), k
         n = len(pos)
         if n < SMALL_TEAM:
             return self._solve_lists(pos.tolist(), slot_points.tolist(), travel_weight, world)
@@ -208,6 +217,23 @@ class PlanFrame:
         far = float(np.sqrt((s * s).sum(axis=1).max()))
         k = max(math.ceil(far / (world.v_max_mps * world.dt_s) - _STEP_TOL), 1)
         return t, float(k)
+
+    def solve_floats(self, pos: Array, slot_points: Array, travel_weight: float,
+                     world: WorldConfig = DEFAULT_WORLD) -> tuple[float, float, float]:
+        """:meth:`solve` as plain floats (tx, ty, K): the compiled kernel's own answer."""
+        kern = self._kernel
+        if kern is None:
+            t, k = self.solve(pos, slot_points, travel_weight, world)
+            tx, ty = t.tolist()
+            return tx, ty, k
+        n = len(pos)
+        if self._d.shape[0] != n:
+            self._d = np.zeros((n, 2))
+        out: tuple[float, float, float] = kern.plan_frame(
+            np.ascontiguousarray(pos, dtype=np.float64),
+            np.ascontiguousarray(slot_points, dtype=np.float64),
+            self._d, travel_weight, world.v_max_mps * world.dt_s, self._sup)
+        return out
 
     def _solve_lists(self, L: list[list[float]], Q: list[list[float]], travel_weight: float,
                      world: WorldConfig) -> tuple[Array, float]:

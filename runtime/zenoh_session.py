@@ -57,7 +57,7 @@ import argparse
 import json
 import os
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Final, Literal
 
@@ -240,6 +240,20 @@ def open_config(conf: zenoh.Config) -> zenoh.Session:
         return zenoh.open(conf)
     except Exception as e:
         raise ZenohSetupError(f"cannot open zenoh session: {_first_line(e)[:300]}") from None
+
+
+def direct(callback: Callable[[Any], Any]) -> zenoh.handlers.Callback[Any]:
+    """``callback`` run on the Zenoh thread that received the sample.
+
+    zenoh-python's default (``indirect``) hands every sample to a Python thread
+    of its own that then calls the callback: one more thread wake-up and GIL
+    hand-over per sample. For the hot keys (the world's poses at the robots,
+    the robots' commands at the world) whose callbacks only decode, store and
+    notify, running them on the receiving thread saves that hop. Such a
+    callback must never block on the caller's thread (no Zenoh calls that wait
+    for a reply, no long work): it would stall every key of the session.
+    """
+    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 def open_session(

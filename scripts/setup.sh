@@ -4,7 +4,17 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
-stamp=".venv/.installed-$(cat pyproject.toml constraints.txt | sha256sum | cut -c1-16)"
+# the stamp covers what the install builds from: a changed kernel is rebuilt
+stamp=".venv/.installed-$(cat pyproject.toml constraints.txt setup.py runtime/_kernel.c \
+    | sha256sum | cut -c1-16)"
+# the robots' compiled decision kernel (runtime/_kernel.c) needs a C compiler; without one the
+# install goes on and the robots decide in Python (the same numbers, slower)
+if [ ! -f "$stamp" ] && ! command -v cc >/dev/null && [ "$(id -u)" -eq 0 ] \
+        && command -v apt-get >/dev/null; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+        apt-get install -y -qq --no-install-recommends gcc libc6-dev) >/dev/null 2>&1 \
+        || echo "setup.sh: no C compiler: the robots will decide in Python" >&2
+fi
 if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
 fi

@@ -63,6 +63,7 @@ from runtime.messages import (
     encode_poses,
 )
 from runtime.types import Array
+from runtime.zenoh_session import direct
 from sim_bridge.membership import Roster
 from sim_bridge.recorder import Recorder
 
@@ -129,8 +130,8 @@ class WorldLink:
                 s.declare_publisher(keys.pattern_key(sw), express=True))
             self._poses_pub = stack.enter_context(
                 s.declare_publisher(keys.poses_key(sw), express=True))
-            stack.enter_context(s.declare_subscriber(
-                keys.swarm_root(sw), self._on_sample, allowed_origin=zenoh.Locality.REMOTE))
+            stack.enter_context(s.declare_subscriber(  # commands: on Zenoh's own thread
+                keys.swarm_root(sw), direct(self._on_sample), allowed_origin=zenoh.Locality.REMOTE))
             if self.rec is not None:  # brains this session sends (swaps) are on the log too
                 stack.enter_context(s.declare_subscriber(
                     keys.brain_key(sw), self._on_own_brain,

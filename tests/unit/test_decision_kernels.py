@@ -17,10 +17,11 @@ from runtime.patterns import make_pattern
 from runtime.safety import OrcaParams, nearest_in_range
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @pytest.mark.parametrize("n", [2, 7, 40, 100])
-def test_assignment_kernel_matches_assign_centred(n: int) -> None:
+def test_assignment_kernel_matches_assign_centred(n: int, compiled: bool) -> None:
     rng = np.random.default_rng(n)
-    c = Controller(RuleBrain())
+    c = Controller(RuleBrain(), compiled=compiled)
     C = make_pattern("circle", n)
     c._set_pattern(C)
     prev = None
@@ -28,10 +29,11 @@ def test_assignment_kernel_matches_assign_centred(n: int) -> None:
         P = rng.normal(size=(n, 2)) * 2.0
         if prev is not None and rng.random() < 0.5:  # near-ties: hysteresis decides
             P = C - C.mean(0) + rng.normal(size=(n, 2)) * 1e-3
-        Pc = P - P.mean(0)
+        cen = np.add.reduce(P, 0) / n
         c._prev_slots = prev
-        got = c._assign(Pc)
-        want = assign_centred(Pc, c._cc, prev)
+        got, cx, cy = c._assign(P)
+        assert [cx, cy] == cen.tolist()  # the centroid, bit for bit
+        want = assign_centred(P - cen, c._cc, prev)
         assert got.tolist() == want.tolist()
         prev = got
 
