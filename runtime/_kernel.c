@@ -324,9 +324,9 @@ static PyObject *row(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     PyObject *res = NULL;
     if (args_n(nargs, 14, "row") < 0)
         return NULL;
-    Py_ssize_t i = PyLong_AsSsize_t(args[2]);
+    Py_ssize_t i = PyNumber_AsSsize_t(args[2], PyExc_OverflowError);
     double sx = PyFloat_AsDouble(args[3]), sy = PyFloat_AsDouble(args[4]);
-    Py_ssize_t k = PyLong_AsSsize_t(args[5]);
+    Py_ssize_t k = PyNumber_AsSsize_t(args[5], PyExc_OverflowError);
     double reach = PyFloat_AsDouble(args[6]), dt = PyFloat_AsDouble(args[7]);
     double pace = PyFloat_AsDouble(args[8]);
     if (PyErr_Occurred())
@@ -567,8 +567,8 @@ static PyObject *orca(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     if (args_n(nargs, 14, "orca") < 0)
         return NULL;
     double vx = PyFloat_AsDouble(args[0]), vy = PyFloat_AsDouble(args[1]);
-    Py_ssize_t i = PyLong_AsSsize_t(args[4]);
-    Py_ssize_t keep = PyLong_AsSsize_t(args[7]);
+    Py_ssize_t i = PyNumber_AsSsize_t(args[4], PyExc_OverflowError);
+    Py_ssize_t keep = PyNumber_AsSsize_t(args[7], PyExc_OverflowError);
     double range_sq = PyFloat_AsDouble(args[8]), combined = PyFloat_AsDouble(args[9]);
     double tau = PyFloat_AsDouble(args[10]), dt = PyFloat_AsDouble(args[11]);
     double keep_right = PyFloat_AsDouble(args[12]), v_max = PyFloat_AsDouble(args[13]);
