@@ -17,7 +17,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#define KERNEL_VERSION 1
+#define KERNEL_VERSION 2
 #define MAX_NEAR 64          /* ORCA neighbours at most (OrcaParams.max_neighbours) */
 #define RVO_EPS 1e-5
 #define CHANGE_TOL 1e-9
@@ -293,6 +293,174 @@ done:
     release(&bx);
     release(&by);
     release(&bc);
+    return res;
+}
+
+/* --------------------------------------- the assignment (scipy's solver, warm) */
+
+/* One shortest augmenting path from free row i (Crouse 2016, as scipy's
+ * rectangular_lsap.cpp): returns the sink column, -1 if none (infeasible). */
+static Py_ssize_t augmenting_path(Py_ssize_t n, const double *cost, const double *u,
+                                  const double *v, Py_ssize_t *path, const Py_ssize_t *row4col,
+                                  double *spc, Py_ssize_t i, char *SR, char *SC,
+                                  Py_ssize_t *remaining, double *p_min)
+{
+    double min_val = 0.0;
+    Py_ssize_t num_remaining = n;
+    for (Py_ssize_t it = 0; it < n; it++)
+        remaining[it] = n - it - 1; /* reversed: a constant cost gives the identity */
+    memset(SR, 0, (size_t)n);
+    memset(SC, 0, (size_t)n);
+    for (Py_ssize_t j = 0; j < n; j++)
+        spc[j] = INFINITY;
+    Py_ssize_t sink = -1;
+    while (sink == -1) {
+        Py_ssize_t index = -1;
+        double lowest = INFINITY;
+        SR[i] = 1;
+        for (Py_ssize_t it = 0; it < num_remaining; it++) {
+            Py_ssize_t j = remaining[it];
+            double r = min_val + cost[i * n + j] - u[i] - v[j];
+            if (r < spc[j]) {
+                path[j] = i;
+                spc[j] = r;
+            }
+            if (spc[j] < lowest || (spc[j] == lowest && row4col[j] == -1)) {
+                lowest = spc[j];
+                index = it;
+            }
+        }
+        min_val = lowest;
+        if (min_val == INFINITY || index < 0)
+            return -1;
+        Py_ssize_t j = remaining[index];
+        if (row4col[j] == -1)
+            sink = j;
+        else
+            i = row4col[j];
+        SC[j] = 1;
+        remaining[index] = remaining[--num_remaining];
+    }
+    *p_min = min_val;
+    return sink;
+}
+
+/* assign(cost, prev, v, warm, out) -> rows solved (-1: infeasible)
+ *
+ * A minimum-cost assignment of the (n, n) float64 cost: out[i] = robot i's slot. Cold
+ * (warm false): scipy's linear_sum_assignment, step for step (the same answer, ties
+ * included). Warm: the slot potentials v (n,) of the last solve start it; u_i = min_j
+ * (cost_ij - v_j) makes them feasible, each robot whose previous slot prev[i] is still
+ * tight keeps it, and only the others are augmented. Any optimal assignment is what the
+ * solver may return; it is the same one as cold but for exact ties. v is updated. */
+static PyObject *assign(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    Buf bc = {0}, bp = {0}, bv = {0}, bo = {0};
+    PyObject *res = NULL;
+    void *mem = NULL;
+    if (args_n(nargs, 5, "assign") < 0)
+        return NULL;
+    int warm = PyObject_IsTrue(args[3]);
+    if (warm < 0)
+        return NULL;
+    if (get_buf(args[2], &bv, "d", 1, 1, "v") < 0)
+        goto done;
+    Py_ssize_t n = items(&bv);
+    if (get_buf(args[0], &bc, "d", n * n, 0, "cost") < 0
+        || get_buf(args[1], &bp, "ql", n, 0, "prev") < 0
+        || get_buf(args[4], &bo, "ql", n, 1, "out") < 0)
+        goto done;
+    if (items(&bc) != n * n || items(&bp) != n || items(&bo) != n) {
+        PyErr_SetString(PyExc_ValueError, "assign: cost, prev, v and out differ in size");
+        goto done;
+    }
+    const double *C = bc.view.buf;
+    const int64_t *prev = bp.view.buf;
+    double *v = bv.view.buf;
+    int64_t *out = bo.view.buf;
+    for (Py_ssize_t k = 0; k < n * n; k++)
+        if (!isfinite(C[k])) {
+            PyErr_SetString(PyExc_ValueError, "assign: the cost must be finite");
+            goto done;
+        }
+    mem = PyMem_Malloc((size_t)n * (2 * sizeof(double) + 4 * sizeof(Py_ssize_t) + 2));
+    if (mem == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *u = mem, *spc = u + n;
+    Py_ssize_t *path = (Py_ssize_t *)(spc + n), *col4row = path + n, *row4col = col4row + n,
+               *remaining = row4col + n;
+    char *SR = (char *)(remaining + n), *SC = SR + n;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        path[k] = col4row[k] = row4col[k] = -1;
+        u[k] = 0.0;
+    }
+    if (warm) {
+        for (Py_ssize_t k = 0; k < n; k++)
+            if (!isfinite(v[k]) || prev[k] < -1 || prev[k] >= n)
+                warm = 0;
+    }
+    if (warm) {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            const double *row = C + i * n;
+            double m = INFINITY;
+            for (Py_ssize_t j = 0; j < n; j++) {
+                double r = row[j] - v[j];
+                if (r < m)
+                    m = r;
+            }
+            u[i] = m;
+            Py_ssize_t j = prev[i];
+            if (j >= 0 && row4col[j] == -1 && row[j] - v[j] == m) {
+                col4row[i] = j;
+                row4col[j] = i;
+            }
+        }
+    } else {
+        for (Py_ssize_t k = 0; k < n; k++)
+            v[k] = 0.0;
+    }
+    long solved = 0;
+    for (Py_ssize_t cur = 0; cur < n; cur++) {
+        if (col4row[cur] != -1)
+            continue;
+        double min_val;
+        Py_ssize_t sink = augmenting_path(n, C, u, v, path, row4col, spc, cur, SR, SC,
+                                          remaining, &min_val);
+        if (sink < 0) {
+            solved = -1;
+            break;
+        }
+        solved++;
+        u[cur] += min_val;
+        for (Py_ssize_t i = 0; i < n; i++)
+            if (SR[i] && i != cur)
+                u[i] += min_val - spc[col4row[i]];
+        for (Py_ssize_t j = 0; j < n; j++)
+            if (SC[j])
+                v[j] -= min_val - spc[j];
+        Py_ssize_t j = sink;
+        for (;;) {
+            Py_ssize_t i = path[j];
+            row4col[j] = i;
+            Py_ssize_t t = col4row[i];
+            col4row[i] = j;
+            j = t;
+            if (i == cur)
+                break;
+        }
+    }
+    if (solved >= 0)
+        for (Py_ssize_t i = 0; i < n; i++)
+            out[i] = col4row[i];
+    res = PyLong_FromLong(solved);
+done:
+    PyMem_Free(mem);
+    release(&bc);
+    release(&bp);
+    release(&bv);
+    release(&bo);
     return res;
 }
 
@@ -733,6 +901,8 @@ done:
 /* ------------------------------------------------------------ module */
 
 static PyMethodDef methods[] = {
+    {"assign", (PyCFunction)(void (*)(void))assign, METH_FASTCALL,
+     "assign(cost, prev, v, warm, out) -> rows solved (-1: infeasible)"},
     {"centred_cost", (PyCFunction)(void (*)(void))centred_cost, METH_FASTCALL,
      "centred_cost(pos, ccx, ccy, cost) -> (cx, cy)"},
     {"plan_frame", (PyCFunction)(void (*)(void))plan_frame, METH_FASTCALL,

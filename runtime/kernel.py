@@ -34,7 +34,7 @@ from typing import Final
 
 __all__ = ["KERNEL", "VERSION", "kernel_status", "use_kernel"]
 
-VERSION: Final = 1
+VERSION: Final = 2
 """The kernel's interface version; a build of another version is not used."""
 
 

@@ -51,11 +51,13 @@ def test_general_row_same_numbers_for_any_team_size(n: int) -> None:
         assert fast == slow
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 def test_proof_keeps_the_solvers_assignment_while_a_team_forms_and_holds(
-    monkeypatch: pytest.MonkeyPatch,
+    monkeypatch: pytest.MonkeyPatch, compiled: bool,
 ) -> None:
-    """From PROOF_FROM robots the previous assignment is proven instead of solved, and
-    every step's slots are still exactly scipy's with the hysteresis rule."""
+    """From PROOF_FROM robots the previous assignment is proven instead of solved (Python
+    path) or the solver starts warm from it (compiled path), and every step's slots are
+    still exactly scipy's with the hysteresis rule."""
     n = max(decision.PROOF_FROM, 30)
     proven: list[bool] = []
 
@@ -68,7 +70,7 @@ def test_proof_keeps_the_solvers_assignment_while_a_team_forms_and_holds(
     rng = np.random.default_rng(3)
     C = make_pattern("circle", n)
     pos = rng.uniform(0.0, 4.0, (n, 2))
-    c = Controller(RuleBrain(), safety=None)
+    c = Controller(RuleBrain(), safety=None, compiled=compiled)
     ref = None
     for t in range(120):
         vel = np.array([c.decide(i, pos, C, t).velocity for i in range(n)])
@@ -76,6 +78,9 @@ def test_proof_keeps_the_solvers_assignment_while_a_team_forms_and_holds(
         assert c.previous_slots is not None
         assert c.previous_slots.tolist() == ref.tolist()
         pos = pos + 0.1 * vel + rng.normal(0.0, 1e-3, pos.shape)  # a little noise
+    if compiled:
+        assert not proven  # the warm start is the compiled path's proof
+        return
     assert any(proven[-n:])  # formed: the proof holds ...
     assert not all(proven)  # ... and it was tried and failed while forming
 

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.optimize import linear_sum_assignment
 
 from runtime import safety as safety_module
 from runtime.brain import RuleBrain, load_brain
@@ -393,3 +394,34 @@ def test_kernel_off_in_the_environment_runs_the_reference() -> None:
     pos = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3], [1.0, 1.0]])
     d = Controller(RuleBrain(), compiled=True).decide(1, pos, make_pattern("circle", 4), 0)
     np.testing.assert_allclose(ast.literal_eval(run.stdout.strip()), d.velocity, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 10, 33, 100])
+def test_assign_is_scipys_solver_cold_and_optimal_warm(n: int) -> None:
+    """Cold: scipy's assignment, ties included (integer costs); warm from the last slots and
+    potentials: an optimal one, scipy's own on untied costs; bad input raises."""
+    K, rng = kern(), np.random.default_rng(n)
+    rows = np.arange(n)
+    for trial in range(60):
+        tied = trial % 3 == 0
+        cost = rng.integers(0, 4, (n, n)).astype(float) if tied else rng.random((n, n)) * 9
+        want = linear_sum_assignment(cost)[1]
+        v, got = np.zeros(n), np.empty(n, dtype=np.int64)
+        assert K.assign(cost, got, v, False, got) == n
+        assert got.tolist() == want.tolist()
+        moved = cost + rng.random((n, n)) * (0.0 if tied else 0.05)  # the next step
+        warm = np.empty(n, dtype=np.int64)
+        assert 0 <= K.assign(moved, got, v, True, warm) <= n
+        best = linear_sum_assignment(moved)[1]
+        assert moved[rows, warm].sum() <= moved[rows, best].sum() + 1e-9
+        if not tied:
+            assert warm.tolist() == best.tolist()
+    v, out = np.zeros(n), np.empty(n, dtype=np.int64)
+    for bad in (np.full((n, n), np.nan), np.zeros((n, n + 1)), np.zeros((n, n), np.float32)):
+        with pytest.raises(BAD):
+            K.assign(bad, out, v, False, out)
+    with pytest.raises(BAD):
+        K.assign(np.zeros((n, n)), np.zeros(n, np.int32), v, True, out)
+    far = np.full(n, n + 5, dtype=np.int64)  # a previous assignment out of range: solved cold
+    assert K.assign(np.eye(n), far, np.zeros(n), True, out) == n
+    assert out.tolist() == linear_sum_assignment(np.eye(n))[1].tolist()
