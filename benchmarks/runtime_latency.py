@@ -11,7 +11,11 @@ Measures, on this machine:
    with the general spec exists, else random weights built here with the
    ``onnx`` helper). The teams are forming a circle from random starts, every
    robot deciding with its own :class:`runtime.decision.Controller`, so the
-   filter meets real encounters. Budget: p99 <= 50 us at N = 10.
+   filter meets real encounters. Beside each ONNX configuration, onnxruntime
+   alone on one row, called after every decision of the same run (so both see
+   the same machine). Budget at N = 10: p99 <= 50 us, p50 <= 2x onnxruntime
+   alone. The line ``decision kernel`` says whether the compiled kernel ran
+   (``runtime/kernel.py``; ``PATTERNRL_KERNEL=0`` measures the Python path).
 2. **Process start -> first command**: ``patternrl robot`` started against a
    running stub world publishing step-0 poses. Budget: <= 1 s.
 3. **RSS** of a running robot process (rule and ONNX brains). Budget: <= 150 MB.
@@ -50,6 +54,7 @@ from runtime.brain import (  # noqa: E402
     validate_brain_bytes,
 )
 from runtime.decision import Controller  # noqa: E402
+from runtime.kernel import kernel_status  # noqa: E402
 from runtime.observation import ObservationSpec  # noqa: E402
 from runtime.patterns import make_pattern  # noqa: E402
 from runtime.safety import OrcaParams  # noqa: E402
@@ -146,8 +151,11 @@ def decision_latency(
     C = make_pattern("circle", n)
     lat: list[float] = []
     cpu: list[float] = []
+    alone: list[float] = []  # onnxruntime alone, one call after each decision: side by side
     interventions = 0
     tt = time.thread_time_ns
+    row = np.zeros((1, brain.spec.dim), np.float32)
+    onnx = isinstance(brain, OnnxBrain)
     while len(lat) < samples:
         pos = spread(n, rng, side=max(2.0, 0.6 * np.sqrt(n)))
         ctrls = [Controller(brain, W, safety) for _ in range(n)]
@@ -161,6 +169,10 @@ def decision_latency(
                 if t >= 2:  # the first steps warm caches and history
                     lat.append(d.decision_us)
                     cpu.append((c1 - c0) / 1000.0)
+                    if onnx:
+                        a0 = time.perf_counter_ns()
+                        brain.act(row)
+                        alone.append((time.perf_counter_ns() - a0) / 1000.0)
                 interventions += d.safety_changed
             pos = pos + W.dt_s * vel
     a = np.array(lat[:samples])
@@ -179,6 +191,8 @@ def decision_latency(
         "mean_us": float(a.mean()),
         "samples": len(a),
         "filter_share": interventions / max(1, len(lat)),
+        "onnxruntime_alone_p50_us": float(np.percentile(alone, 50)) if alone else None,
+        "onnxruntime_alone_p99_us": float(np.percentile(alone, 99)) if alone else None,
     }
 
 
@@ -311,6 +325,7 @@ def main() -> int:
     out: dict[str, Any] = {
         "decision": [],
         "machine": {"cpus": os.cpu_count(), "load_avg_1min_at_start": os.getloadavg()[0]},
+        "kernel": kernel_status(),
     }
     with tempfile.TemporaryDirectory() as tmp:
         brain_path, brain_label = find_or_build_brain(Path(tmp))
@@ -350,13 +365,14 @@ def main() -> int:
         f"machine: {m['cpus']} CPUs, 1-min load average {m['load_avg_1min_at_start']:.2f} "
         f"at start, {m['load_avg_1min_at_end']:.2f} at end"
     )
-    print(f"ONNX brain: {out['onnx_brain']}")
+    print(f"ONNX brain: {out['onnx_brain']}; decision kernel: {out['kernel']}")
     print("\nDecision latency per robot (assignment + observation + brain + safety filter):")
     print("(wall clock, and the thread's CPU time, which leaves out preemption by other load)")
     print("(best round: the quietest fifth of the run, by p99)")
     print(
         f"{'N':>4} {'brain':<12} {'safety':<6} {'p50 us':>8} {'p99 us':>8} "
         f"{'cpu p50':>8} {'cpu p99':>8} {'best p50':>9} {'best p99':>9} {'filter %':>9}"
+        f" {'ort p50':>8} {'x ort':>6}"
     )
     for r in out["decision"]:
         print(
@@ -364,7 +380,12 @@ def main() -> int:
             f"{r['p99_us']:>8.1f} {r['cpu_p50_us']:>8.1f} {r['cpu_p99_us']:>8.1f} "
             f"{r['best_round_p50_us']:>9.1f} {r['best_round_p99_us']:>9.1f} "
             f"{100 * r['filter_share']:>8.1f}%"
+            + (f" {r['onnxruntime_alone_p50_us']:>8.1f} "
+               f"{r['p50_us'] / r['onnxruntime_alone_p50_us']:>5.2f}x"
+               if r["onnxruntime_alone_p50_us"] else "")
         )
+    print("(ort p50: onnxruntime alone on one row, called after each decision of the same run;"
+          " x ort: decision p50 / ort p50)")
     o = out["onnxruntime_alone_us"]
     print(f"\nonnxruntime alone, batch 1: p50 {o['p50']:.1f} us, p99 {o['p99']:.1f} us")
     if not args.skip_processes:
