@@ -32,9 +32,9 @@ the figures before; the TLS cost is the launcher's.
 
 Part 3, **one decision** (assignment + observation + brain + ORCA, the robot's
 :class:`runtime.decision.Controller`) at N = 10, 50, 100 with the general brain, beside
-onnxruntime alone (the same brain's ``act`` on one observation) in the same run: p50 and
-p99 in microseconds, with the machine's load average printed beside them (run once on an
-idle machine and once busy to see both).
+onnxruntime alone (the same brain's ``act`` on one observation, called after each decision
+of the same run): p50 and p99 in microseconds, with the machine's load average printed
+beside them (run once on an idle machine and once busy to see both).
 
     .venv/bin/python benchmarks/swarm_scale.py [--json] [--quick] [--sizes 10,25,50,100]
         [--topology router|peer] [--lockstep 10,20] [--no-decision]
@@ -210,21 +210,14 @@ def decision_figures(brain: Brain, n: int, samples: int) -> dict[str, Any]:
     """One decision at team size n (runtime_latency's loop) beside onnxruntime alone."""
     from runtime_latency import decision_latency  # benchmarks/runtime_latency.py
 
-    d = decision_latency(brain, n, samples, OrcaParams())
-    x = np.zeros((1, brain.spec.dim), np.float32)  # onnxruntime's time does not see values
-    for _ in range(200):
-        brain.act(x)
-    ort: list[float] = []
-    for _ in range(samples):
-        t = time.perf_counter_ns()
-        brain.act(x)
-        ort.append((time.perf_counter_ns() - t) / 1000.0)
+    d = decision_latency(brain, n, samples, OrcaParams())  # onnxruntime alone interleaved
+    ort_p50, ort_p99 = d["onnxruntime_alone_p50_us"], d["onnxruntime_alone_p99_us"]
     return {"n": n, "decision_us_p50": round(d["p50_us"], 1),
             "decision_us_p99": round(d["p99_us"], 1),
             "quietest_round_p99_us": round(d["best_round_p99_us"], 1),
-            "onnxruntime_us_p50": round(float(np.percentile(ort, 50)), 1),
-            "onnxruntime_us_p99": round(float(np.percentile(ort, 99)), 1),
-            "ratio_p50": round(d["p50_us"] / float(np.percentile(ort, 50)), 2),
+            "onnxruntime_us_p50": round(ort_p50, 1),
+            "onnxruntime_us_p99": round(ort_p99, 1),
+            "ratio_p50": round(d["p50_us"] / ort_p50, 2),
             "load_average_1min": round(os.getloadavg()[0], 2)}
 
 

@@ -81,6 +81,7 @@ from runtime.brain import Brain, BrainError, load_brain, short_id
 from runtime.decision import Controller, Decision
 from runtime.errors import InputError
 from runtime.inbox import PoseInbox, Step
+from runtime.kernel import kernel_status
 from runtime.log import Log, one_line
 from runtime.messages import Command, MessageError, decode_pattern, encode_command, encode_status
 from runtime.patterns import PatternError
@@ -403,7 +404,8 @@ def run(args: argparse.Namespace) -> int:
                 "info",
                 "start",
                 f"swarm {cfg.swarm}, {cfg.mode}, brain {short_id(brain.brain_id)} "
-                f"({brain.spec.name}), safety {'orca' if safety else 'off'}",
+                f"({brain.spec.name}), safety {'orca' if safety else 'off'}, "
+                f"decision {kernel_status()}",
             )
             code = robot.run()
         heavy = heavy_modules()
