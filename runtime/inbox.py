@@ -140,13 +140,17 @@ class PoseInbox:
                 if self.id in self._col_ids and len(self._col_ids) >= pose.n_live:
                     self.cond.notify()
 
-    def take_batch(self, payload: bytes) -> None:
-        """An all-poses sample: kept as the step to decide, or dropped (counted) when malformed."""
+    def take_batch(self, payload: bytes, notify: bool = True) -> bool:
+        """An all-poses sample: kept as the step to decide, or dropped (counted) when malformed.
+
+        Returns True when it made a new step of this robot ready; ``notify`` False leaves
+        waking the loop to the caller (:meth:`wake`), which may decide the step itself
+        (:meth:`take_ready`)."""
         try:  # only what the robot uses: step, ids, positions (the same checks)
             s, ids, xy = decode_positions(payload, MAX_COORD_M)
         except MessageError as e:
             self._drop("poses", str(e))
-            return
+            return False
         mine = self.id in ids
         now = time.monotonic()
         with self.cond:
@@ -154,12 +158,30 @@ class PoseInbox:
             self.batches += 1
             if s <= self._batch_step:
                 if not (mine and s < self._batch_step):
-                    return  # a duplicate or out of order: the newer one is kept
+                    return False  # a duplicate or out of order: the newer one is kept
                 self._restart = True  # our own step went back: the world restarted
             self._batch_step = s
             self._batch = Step(s, ids, xy) if mine else None
-            if mine:
+            if mine and notify:
                 self.cond.notify()
+        return mine
+
+    def wake(self) -> None:
+        """Wake the loop's wait in :meth:`next_step`."""
+        with self.cond:
+            self.cond.notify()
+
+    def take_ready(self) -> Step | None:
+        """The all-poses step ready now, marked decided (for a caller that decides it at
+        once, off the loop); None when there is none or the world restarted (the loop
+        handles a restart)."""
+        with self.cond:
+            if self._restart:
+                return None
+            step = self._ready_batch()
+            if step is not None:
+                self._last_decided = step.step
+            return step
 
     # --------------------------------------------------------------- loop side
 
