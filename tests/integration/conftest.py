@@ -33,11 +33,13 @@ from runtime.messages import (
     MessageError,
     PatternMsg,
     Pose,
+    PoseBatch,
     Status,
     decode_command,
     decode_status,
     encode_pattern,
     encode_pose,
+    encode_poses,
 )
 from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
@@ -80,6 +82,8 @@ class StubWorld:
             self._decls.enter_context(d)
         self._pubs: dict[int, Any] = {}
         self.pattern_version = 0
+        self.batches = False
+        """True: every pose of a step in one all-poses message, as ``patternrl sim`` sends."""
 
     # -- callbacks
     def _on_cmd(self, sample: zenoh.Sample) -> None:
@@ -129,6 +133,11 @@ class StubWorld:
         t = time.monotonic()
         with self.cond:
             self.pose_times[step] = t
+        if self.batches:
+            xy = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
+            batch = PoseBatch(step, t, np.array(ids, np.uint32), xy, np.zeros_like(xy))
+            self.session.put(keys.poses_key(self.swarm), encode_poses(batch))
+            return
         for rid, (x, y) in zip(ids, pos.tolist(), strict=True):
             pub = self._pubs.get(rid)
             if pub is None:

@@ -244,10 +244,14 @@ def run_swap_cli(world: StubWorld, brain: str, *extra: str) -> subprocess.Comple
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=60)
 
 
+@pytest.mark.parametrize("batches", [False, True], ids=["per-robot poses", "all-poses message"])
 def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
-    world: StubWorld, robots: list[RobotProc], tmp_path: Path
+    world: StubWorld, robots: list[RobotProc], tmp_path: Path, batches: bool
 ) -> None:
+    """With all poses in one message a robot decides on Zenoh's thread and hands a step
+    to its loop only while a swap waits: the swaps still fall between two steps."""
     n = 3
+    world.batches = batches
     start_team(world, robots, n, RULE_ASSIGN, "--pattern", "line")
     good = write_test_brain(tmp_path, "good", seed=1)
     good_id = json.loads(good.with_suffix(".json").read_text())["brain_id"]
