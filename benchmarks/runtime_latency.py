@@ -66,6 +66,8 @@ W = DEFAULT_WORLD
 def _stub() -> Any:
     """The integration tests' stub world (tests/integration/conftest.py)."""
     path = ROOT / "tests" / "integration" / "conftest.py"
+    if str(ROOT / "tests") not in sys.path:  # its helpers (tests/support.py), as pytest sees them
+        sys.path.insert(0, str(ROOT / "tests"))
     spec = importlib.util.spec_from_file_location("stub_world", path)
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
