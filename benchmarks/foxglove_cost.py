@@ -40,7 +40,8 @@ from runtime.messages import Command, Pose, encode_command, encode_pose
 from runtime.world_config import DEFAULT_WORLD
 from sim_bridge.foxglove_client import FoxgloveClient
 from sim_bridge.foxglove_live import FoxgloveLive
-from sim_bridge.recorder import Recorder, SimTime, scene_update
+from sim_bridge.recorder import Recorder, SimTime
+from sim_bridge.scene import scene_update
 
 
 class Viewer:

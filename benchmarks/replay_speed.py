@@ -66,7 +66,8 @@ from runtime.world_config import DEFAULT_WORLD
 from sim_bridge.log_file import iter_messages
 from sim_bridge.log_reader import read_log
 from sim_bridge.log_report import analyse
-from sim_bridge.recorder import Recorder, scene_update
+from sim_bridge.recorder import Recorder
+from sim_bridge.scene import scene_update
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 GOAL_MSGS_PER_S = 100_000.0

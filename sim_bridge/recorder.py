@@ -1,8 +1,8 @@
 """Writes the MCAP log of a run: everything the world saw and did, time-stamped.
 
 The channels, encodings and schemas are :mod:`sim_bridge.log_layout`'s; this
-module writes them (:class:`Recorder`) and builds the Foxglove scene of a step
-(:func:`scene_update`). Each Zenoh payload is decoded and written as its protobuf
+module writes them (:class:`Recorder`); the Foxglove scene of a step is
+:mod:`sim_bridge.scene`'s. Each Zenoh payload is decoded and written as its protobuf
 message (:mod:`sim_bridge.log_schemas`); one over :data:`MAX_PAYLOAD_BYTES`
 (brains: :data:`MAX_BRAIN_PAYLOAD_BYTES`) is not written, an event says so. The
 same messages can go to a live sink too (:class:`sim_bridge.foxglove_live.FoxgloveLive`),
@@ -19,12 +19,11 @@ import json
 import struct
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Final, Protocol
 
-import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from runtime import keys
@@ -40,7 +39,6 @@ from runtime.messages import (
     decode_status,
     encode_pose,
 )
-from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from sim_bridge import log_schemas as pb
 from sim_bridge.log_layout import (
     EVENTS_TOPIC,
@@ -67,69 +65,6 @@ MALFORMED_BYTES_KEPT: Final = 256
 """Of a payload that did not decode, the first bytes kept on ``/log/other``."""
 REFUSED_EVENTS: Final = 100
 """Refused payloads logged one by one as events; the count goes on."""
-
-_IDENTITY: Final = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
-
-
-def _colour(i: int) -> dict[str, float]:
-    """A stable, distinct colour per robot id (tab10 cycle)."""
-    tab10 = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-             (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
-    r, g, b = tab10[i % len(tab10)]
-    return {"r": r / 255, "g": g / 255, "b": b / 255, "a": 1.0}
-
-
-def _entity(stamp: dict[str, int], eid: str, **prims: list[dict[str, Any]]) -> dict[str, Any]:
-    ent: dict[str, Any] = {
-        "timestamp": stamp, "frame_id": SCENE_FRAME, "id": eid,
-        "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, "metadata": [],
-        "arrows": [], "cubes": [], "spheres": [], "cylinders": [], "lines": [],
-        "triangles": [], "texts": [], "models": [],
-    }
-    ent.update(prims)
-    return ent
-
-
-def scene_update(
-    log_time_ns: int,
-    robots: Sequence[tuple[int, float, float]],
-    targets: np.ndarray | None,
-    removed: Sequence[int] = (),
-    arena_m: float | None = None,
-    world: WorldConfig = DEFAULT_WORLD,
-) -> dict[str, Any]:
-    """One ``foxglove.SceneUpdate``: a disc per robot (id = robot id), targets, walls."""
-    stamp = {"sec": log_time_ns // 1_000_000_000, "nsec": log_time_ns % 1_000_000_000}
-    d = 2.0 * world.radius_m
-    height = 0.5 * world.radius_m
-    entities = []
-    for rid, x, y in robots:
-        cyl = {"pose": {"position": {"x": x, "y": y, "z": height / 2}, "orientation": _IDENTITY},
-               "size": {"x": d, "y": d, "z": height}, "bottom_scale": 1.0, "top_scale": 1.0,
-               "color": _colour(rid)}
-        label = {"pose": {"position": {"x": x, "y": y, "z": height * 2}, "orientation": _IDENTITY},
-                 "billboard": True, "font_size": 12.0, "scale_invariant": True,
-                 "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0}, "text": str(rid)}
-        entities.append(_entity(stamp, str(rid), cylinders=[cyl], texts=[label]))
-    if targets is not None and len(targets):
-        s = 0.5 * world.radius_m
-        grey = {"r": 0.5, "g": 0.5, "b": 0.5, "a": 0.6}
-        spheres = [{"pose": {"position": {"x": float(x), "y": float(y), "z": 0.0},
-                             "orientation": _IDENTITY},
-                    "size": {"x": s, "y": s, "z": s}, "color": grey} for x, y in targets]
-        entities.append(_entity(stamp, "targets", spheres=spheres))
-    if arena_m is not None:
-        a = float(arena_m)
-        corners = [{"x": 0.0, "y": 0.0, "z": 0.0}, {"x": a, "y": 0.0, "z": 0.0},
-                   {"x": a, "y": a, "z": 0.0}, {"x": 0.0, "y": a, "z": 0.0}]
-        loop = {"type": 1, "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0},
-                                    "orientation": _IDENTITY},
-                "thickness": 0.02, "scale_invariant": False, "points": corners,
-                "color": {"r": 0.8, "g": 0.8, "b": 0.8, "a": 1.0}, "colors": [], "indices": []}
-        entities.append(_entity(stamp, "arena", lines=[loop]))
-    deletions = [{"timestamp": stamp, "type": 0, "id": str(r)} for r in removed]
-    return {"deletions": deletions, "entities": entities}
-
 
 @dataclass(frozen=True)
 class SimTime:
@@ -453,9 +388,15 @@ class Recorder:
         """Record one step's metrics on ``/world/metrics``."""
         self.write_json(METRICS_TOPIC, obj, log_time_ns)
 
-    def scene(self, update: dict[str, Any], log_time_ns: int | None = None) -> None:
-        """Record one ``foxglove.SceneUpdate`` on ``/world/scene``."""
-        self.write_json(SCENE_TOPIC, update, log_time_ns)
+    def scene(self, update: dict[str, Any] | bytes, log_time_ns: int | None = None) -> None:
+        """Record one ``foxglove.SceneUpdate`` on ``/world/scene``: the object, or its JSON
+        already encoded (:func:`sim_bridge.scene.scene_json`)."""
+        if isinstance(update, dict):
+            self.write_json(SCENE_TOPIC, update, log_time_ns)
+            return
+        with self._lock:
+            if not self._closed:
+                self._add(self._channels[SCENE_TOPIC], update, log_time_ns)
 
     def flush(self) -> None:
         """Finish the chunk in progress and push everything to the file."""

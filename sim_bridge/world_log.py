@@ -17,7 +17,8 @@ from runtime.formation import centred
 from runtime.types import Array
 from runtime.world_config import WorldConfig
 from sim_bridge.phase_tally import StepMeasures
-from sim_bridge.recorder import Recorder, scene_update
+from sim_bridge.recorder import Recorder
+from sim_bridge.scene import scene_json
 
 Say = Callable[[str, bool], None]
 """say(message, detail): detail lines (joins at the start, swaps) matter less."""
@@ -79,7 +80,7 @@ class WorldLog:
         }, now_ns)
         targets = centred(C) + pos.mean(axis=0)
         robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]
-        self.rec.scene(scene_update(now_ns, robots, targets, self._removed_since_scene,
-                                    self.arena_m, self.w), now_ns)
+        self.rec.scene(scene_json(now_ns, robots, targets, self._removed_since_scene,
+                                  self.arena_m, self.w), now_ns)
         self.rec.end_step()
         self._removed_since_scene = []

@@ -22,7 +22,8 @@ from sim_bridge.log_file import iter_messages
 from sim_bridge.log_layout import EVENTS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 from sim_bridge.log_reader import read_log
 from sim_bridge.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
-from sim_bridge.recorder import Recorder, scene_update
+from sim_bridge.recorder import Recorder
+from sim_bridge.scene import scene_update
 
 R = DEFAULT_WORLD.radius_m
 ROOT = Path(__file__).resolve().parents[2]
@@ -221,7 +222,8 @@ _WRITER = textwrap.dedent(
     import sys, time
     import numpy as np
     from runtime import messages as wire
-    from sim_bridge.recorder import Recorder, scene_update
+    from sim_bridge.recorder import Recorder
+    from sim_bridge.scene import scene_update
     rec = Recorder(sys.argv[1], chunk_size=4096, flush_period_s=0.05)
     step = 0
     while True:
