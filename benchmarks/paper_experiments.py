@@ -48,7 +48,7 @@ brains and how long the run took, and the command that regenerates it.
 
 (d) Per-decision latency vs the paper's 1.2 ms (IV.B)
     :func:`benchmarks.runtime_latency.decision_latency`: each of 10 robots
-    decides with its own :class:`runtime.decision.Controller` while the team
+    decides with its own :class:`runtime.controller.Controller` while the team
     forms a circle (assignment + observation + brain + filter), wall clock.
 """
 

@@ -10,7 +10,7 @@ Measures, on this machine:
    256-128-128 on the general observation: a brain from ``exports/`` if one
    with the general spec exists, else random weights built here with the
    ``onnx`` helper). The teams are forming a circle from random starts, every
-   robot deciding with its own :class:`runtime.decision.Controller`, so the
+   robot deciding with its own :class:`runtime.controller.Controller`, so the
    filter meets real encounters. Beside each ONNX configuration, onnxruntime
    alone on one row, called after every decision of the same run (so both see
    the same machine). Budget at N = 10: p99 <= 50 us, p50 <= 2x onnxruntime
@@ -53,7 +53,7 @@ from runtime.brain import (  # noqa: E402
     load_brain,
     validate_brain_bytes,
 )
-from runtime.decision import Controller  # noqa: E402
+from runtime.controller import Controller  # noqa: E402
 from runtime.kernel import kernel_status  # noqa: E402
 from runtime.observation import ObservationSpec  # noqa: E402
 from runtime.patterns import make_pattern  # noqa: E402

@@ -31,7 +31,7 @@ the router's CPU per step. Open TCP on loopback (``--insecure``) throughout, as
 the figures before; the TLS cost is the launcher's.
 
 Part 3, **one decision** (assignment + observation + brain + ORCA, the robot's
-:class:`runtime.decision.Controller`) at N = 10, 50, 100 with the general brain, beside
+:class:`runtime.controller.Controller`) at N = 10, 50, 100 with the general brain, beside
 onnxruntime alone (the same brain's ``act`` on one observation, called after each decision
 of the same run): p50 and p99 in microseconds, with the machine's load average printed
 beside them (run once on an idle machine and once busy to see both).

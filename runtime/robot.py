@@ -23,7 +23,7 @@ world's rule, :mod:`sim_bridge.world_link`). A slow robot therefore costs
 progress, never separation.
 
 Nothing waits on another robot's decision. Every decision goes through the
-:class:`runtime.decision.Controller`: shared assignment, the observation the
+:class:`runtime.controller.Controller`: shared assignment, the observation the
 brain's spec names, the brain, clamp to v_max, the ORCA safety filter.
 
 Faults (DESIGN.md section 4): a malformed message on any key is dropped and
@@ -80,7 +80,8 @@ import zenoh
 
 from runtime import keys
 from runtime.brain import Brain, BrainError, load_brain, short_id
-from runtime.decision import Controller, Decision
+from runtime.controller import Controller
+from runtime.decision import Decision
 from runtime.errors import InputError
 from runtime.inbox import PoseInbox, Step
 from runtime.kernel import kernel_status

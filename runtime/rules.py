@@ -35,7 +35,7 @@ of a linear interpolation towards its own optimum stays optimal). The frame is
 whenever the team, the pattern or the safety filter moves a robot off the
 plan: a robot process, ``eval`` and the world compute the same numbers from the
 same poses (:func:`runtime.decision.decide_batch` and
-:class:`runtime.decision.Controller` call :func:`frame_plan` alike).
+:class:`runtime.controller.Controller` call :func:`frame_plan` alike).
 
 Observation. A team rule reads what every robot already observes (all the
 team's positions), the pattern and the shared assignment, through the decision

@@ -1,7 +1,7 @@
 """What another brain would have done: run it on every recorded step, compare commands.
 
 Another brain, run at every recorded step exactly as a robot runs it: one
-:class:`runtime.decision.Controller` per robot (shared assignment with
+:class:`runtime.controller.Controller` per robot (shared assignment with
 hysteresis, the brain's observation builder, clamp, the ORCA filter unless
 ``safety`` is False) fed the recorded poses of that step (robots sorted by id)
 and the pattern in force when those poses were published (the last pattern
@@ -88,7 +88,7 @@ def counterfactual(data: LogData, brain_ref: str, safety: bool = True) -> Counte
     Raises :class:`runtime.brain.BrainError` for a brain that cannot be loaded.
     """
     from runtime.brain import load_brain
-    from runtime.decision import Controller
+    from runtime.controller import Controller
     from runtime.patterns import PatternError, make_pattern
     from runtime.safety import OrcaParams
 

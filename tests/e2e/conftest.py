@@ -21,7 +21,7 @@ import zenoh
 
 from runtime import keys
 from runtime.brain import RuleBrain
-from runtime.decision import Controller
+from runtime.controller import Controller
 from runtime.messages import (
     Command,
     MessageError,

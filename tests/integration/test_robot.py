@@ -21,7 +21,7 @@ from conftest import ROOT, RobotProc, StubWorld, wait_for, write_test_brain
 
 from runtime import keys
 from runtime.brain import RULE_ASSIGN, RuleBrain
-from runtime.decision import Controller
+from runtime.controller import Controller
 from runtime.formation import assign_slots, collision_pairs, formation_error, slot_positions
 from runtime.messages import (
     BrainMsg,

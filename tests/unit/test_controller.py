@@ -13,8 +13,8 @@ from test_brain import mlp_model  # tests/unit is on sys.path (pytest rootdir mo
 
 from runtime import formation
 from runtime.brain import BrainManifest, RuleBrain, validate_brain_bytes
+from runtime.controller import Controller
 from runtime.decision import (
-    Controller,
     command,
     decide_batch,
     frame_velocities,

@@ -7,10 +7,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from runtime import decision
+from runtime import controller
 from runtime.assignment import certify_team
 from runtime.brain import RuleBrain
-from runtime.decision import Controller, _near_in_order, decide_batch, neighbour_rows
+from runtime.controller import Controller
+from runtime.decision import _near_in_order, decide_batch, neighbour_rows
 from runtime.formation import assign_centred, assign_slots, linear_sum_assignment
 from runtime.observation import frame_velocities, general_row, neighbour_order
 from runtime.patterns import make_pattern
@@ -58,7 +59,7 @@ def test_proof_keeps_the_solvers_assignment_while_a_team_forms_and_holds(
     """From PROOF_FROM robots the previous assignment is proven instead of solved (Python
     path) or the solver starts warm from it (compiled path), and every step's slots are
     still exactly scipy's with the hysteresis rule."""
-    n = max(decision.PROOF_FROM, 30)
+    n = max(controller.PROOF_FROM, 30)
     proven: list[bool] = []
 
     def counting(*args: Any, **kwargs: Any) -> bool:
@@ -66,7 +67,7 @@ def test_proof_keeps_the_solvers_assignment_while_a_team_forms_and_holds(
         proven.append(ok)
         return ok
 
-    monkeypatch.setattr(decision, "certify_team", counting)
+    monkeypatch.setattr(controller, "certify_team", counting)
     rng = np.random.default_rng(3)
     C = make_pattern("circle", n)
     pos = rng.uniform(0.0, 4.0, (n, 2))
@@ -135,7 +136,7 @@ def test_controller_and_batch_agree_on_big_teams_with_the_filter() -> None:
     """Above the numpy neighbour threshold and the proof's team size: the robot's
     decisions are decide_batch's (rule brain, ORCA on)."""
     rng = np.random.default_rng(8)
-    n = decision.PROOF_FROM + 6
+    n = controller.PROOF_FROM + 6
     C = make_pattern("circle", n)
     pos = rng.uniform(0.0, 3.5, (n, 2))
     ctrls = [Controller(RuleBrain()) for _ in range(n)]

@@ -10,7 +10,7 @@ Held equal here, on the same inputs:
 * ``orca`` and :func:`runtime.decision._near_in_order` then
   :func:`runtime.safety.orca_velocity`: the velocity within 1e-12 m/s, ``changed`` exactly;
 * ``centred_cost`` and the assignment's cost (numpy) exactly;
-* :class:`runtime.decision.Controller` compiled and in Python over whole episodes.
+* :class:`runtime.controller.Controller` compiled and in Python over whole episodes.
 
 The one known difference, C's ``hypot`` against CPython's ``math.hypot`` (a last bit,
 rarely), is what the tolerances allow; on every case here the numbers are bit-equal.
@@ -37,7 +37,8 @@ from scipy.optimize import linear_sum_assignment
 
 from runtime import safety as safety_module
 from runtime.brain import RuleBrain, load_brain
-from runtime.decision import Controller, _near_in_order
+from runtime.controller import Controller
+from runtime.decision import _near_in_order
 from runtime.kernel import KERNEL, VERSION, kernel_status
 from runtime.observation import frame_velocities, general_row, neighbour_order
 from runtime.patterns import make_pattern
@@ -376,7 +377,7 @@ def test_kernel_off_in_the_environment_runs_the_reference() -> None:
     code = """if True:
         import numpy as np, pytest
         from runtime.brain import RuleBrain
-        from runtime.decision import Controller
+        from runtime.controller import Controller
         from runtime.kernel import KERNEL, kernel_status
         from runtime.patterns import make_pattern
         assert KERNEL is None and "off" in kernel_status(), kernel_status()

@@ -10,7 +10,8 @@ import torch
 from support import assert_same_episodes
 
 from runtime.brain import BrainManifest, load_brain
-from runtime.decision import Controller, commands, decide_batch
+from runtime.controller import Controller
+from runtime.decision import commands, decide_batch
 from runtime.formation import assign_slots_batch
 from runtime.observation import ObservationError, ObservationSpec, observe
 from runtime.patterns import make_pattern

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from runtime.brain import RULES, BrainError, RuleBrain, load_brain, make_rule
-from runtime.decision import Controller, decide_batch
+from runtime.controller import Controller
+from runtime.decision import decide_batch
 from runtime.formation import _min_enclosing_circle, assign_slots, lower_bounds
 from runtime.patterns import make_pattern
 from runtime.rules import FRAME_RULES, FrameRule, frame_plan
