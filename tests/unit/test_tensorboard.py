@@ -115,12 +115,13 @@ def test_ctrl_c_leaves_a_readable_event_file(tmp_path) -> None:
             time.sleep(0.2)  # polling interval, not a wait for a result
         assert len(steps) >= 2, "no rows appeared while training"
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=150)  # a hang guard: a loaded machine is slow
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    assert proc.returncode == 130
+    # 130, or killed by the SIGINT itself after saying so (the shell shows 130 for both)
+    assert proc.returncode in (130, -signal.SIGINT)
     assert err.strip().splitlines()[-1] == "patternrl train: interrupted"
     final = [e.step for e in _events(logdir).Scalars("update/kl")]
     assert final[: len(steps)] == steps and final == list(range(1, len(final) + 1))
