@@ -100,7 +100,7 @@ def test_ctrl_c_leaves_a_readable_event_file(tmp_path) -> None:
     logdir = tmp_path / "tb"
     cmd = [sys.executable, "-m", "patternrl.cli", "train", "--pattern", "circle", *TINY,
            "--set", "rollout_steps=8", "--time-budget-s", "600", "--no-progress",
-           "--episodes", "1000000",  # no stop on success: a tiny circle may pass its first eval
+           "--until-success", "1.01",  # never met: a tiny circle may pass its first eval
            "--out", str(tmp_path / "b.onnx"), "--tensorboard", str(logdir)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
