@@ -98,7 +98,12 @@ def test_a_file_in_the_way_is_one_line_exit_2(tmp_path, capsys) -> None:
 
 def test_ctrl_c_leaves_a_readable_event_file(tmp_path) -> None:
     logdir = tmp_path / "tb"
-    cmd = [sys.executable, "-m", "patternrl.cli", "train", "--pattern", "circle", *TINY,
+    # the train process takes Ctrl-C even where this one was started with SIGINT ignored
+    # (a background job of a non-interactive shell): Python would then ignore it too
+    cmd = [sys.executable, "-c", "import runpy, signal, sys; signal.signal(signal.SIGINT, "
+           "signal.default_int_handler); sys.argv[0] = 'patternrl'; "
+           "runpy.run_module('patternrl.cli', run_name='__main__')",
+           "train", "--pattern", "circle", *TINY,
            "--set", "rollout_steps=8", "--time-budget-s", "600", "--no-progress",
            "--until-success", "1.01",  # never met: a tiny circle may pass its first eval
            "--out", str(tmp_path / "b.onnx"), "--tensorboard", str(logdir)]
