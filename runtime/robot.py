@@ -245,7 +245,10 @@ class Robot:
             step = self.inbox.take_ready()
             if step is None:
                 return False
-            self._send(step.step, self._decide(step))
+            try:
+                self._send(step.step, self._decide(step))
+            except Exception as e:  # never a traceback on Zenoh's thread: the step is lost
+                self.stats.error(f"send: {one_line(f'{type(e).__name__}: {e}', 160)}")
             return True
         finally:
             self._loop_lock.release()
