@@ -6,7 +6,8 @@ The benchmark runs ``--rounds`` times on each side, alternating (base, this tree
 so both see the same machine load; every numeric leaf of its ``--json`` output is reported as
 the median over rounds, base beside this tree, with the ratio. ``REV`` is checked out into a
 temporary git worktree (removed afterwards) and run with this tree's Python, with
-``PYTHONPATH`` pointing at that worktree. The benchmark must accept ``--json`` and print one
+``PYTHONPATH`` pointing at that worktree, its compiled extensions built there first
+(``setup.py build_ext --inplace``). The benchmark must accept ``--json`` and print one
 JSON object on stdout.
 """
 
@@ -55,6 +56,18 @@ def _run(tree: Path, argv: list[str], timeout_s: float) -> dict[str, float]:
     return _leaves(json.loads(proc.stdout[start:]))
 
 
+def _build(tree: Path) -> None:
+    """Compile the revision's extensions in place, as its install would, so that both sides
+    run what users run (a checkout alone would run any compiled part as Python, or not at all)."""
+    if not (tree / "setup.py").is_file():
+        return
+    built = subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"],
+                           cwd=tree, capture_output=True, text=True, check=False)
+    if built.returncode != 0:
+        print("compare: the base's extensions did not build: it runs without them",
+              file=sys.stderr)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--base", required=True, help="git revision to compare against (e.g. HEAD~5)")
@@ -76,6 +89,7 @@ def main() -> int:
                               args.base], capture_output=True, text=True, check=False)
         if add.returncode != 0:
             raise SystemExit(f"compare: cannot check out {args.base}: {add.stderr.strip()}")
+        _build(base)
         try:
             runs: dict[str, list[dict[str, float]]] = {"base": [], "this": []}
             for r in range(args.rounds):

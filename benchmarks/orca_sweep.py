@@ -50,8 +50,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from runtime.brain import make_rule  # noqa: E402 -- after the path set-up
+from runtime.decision import commands  # noqa: E402
 from runtime.formation import min_separation, min_swept_separation  # noqa: E402
-from runtime.safety import OrcaParams, orca_filter_batch  # noqa: E402
+from runtime.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 
@@ -94,22 +95,19 @@ class Point:
 
 
 def crowd(starts: np.ndarray, goals: np.ndarray, params: OrcaParams) -> tuple[int | None, float]:
-    """Robots heading straight for their goals through the filter: (arrival step, min sep)."""
+    """Robots heading straight for their goals through the filter: (arrival step, min sep).
+
+    Every robot filters its own preferred velocity from its own view, the others'
+    velocities estimated from the last two frames, as a robot does: one team of n."""
     p = starts.astype(np.float64).copy()
     prev = p.copy()
-    n = len(p)
-    mask = ~np.eye(n, dtype=bool)
     closest = float(min_separation(p))
     for t in range(CROWD_STEPS):
         d = goals - p
         dist = np.linalg.norm(d, axis=1)
         speed = np.minimum(W.v_max_mps, dist / W.dt_s)
         pref = d / np.maximum(dist, 1e-12)[:, None] * speed[:, None]
-        vel = (p - prev) / W.dt_s
-        rel = p[None, :, :] - p[:, None, :]
-        v, _ = orca_filter_batch(
-            pref, vel, rel, np.broadcast_to(vel[None], (n, n, 2)), mask, params=params
-        )
+        v = commands(pref[None], p[None], prev[None], params, W)[0][0]
         prev, p = p, p + W.dt_s * v
         closest = min(closest, float(min_swept_separation(prev, p)))
         if (np.linalg.norm(goals - p, axis=1) <= W.formed_tol_m).all():

@@ -14,8 +14,8 @@ Measures, on this machine:
    filter meets real encounters. Beside each ONNX configuration, onnxruntime
    alone on one row, called after every decision of the same run (so both see
    the same machine). Budget at N = 10: p99 <= 50 us, p50 <= 2x onnxruntime
-   alone. The line ``decision kernel`` says whether the compiled kernel ran
-   (``runtime/kernel.py``; ``PATTERNRL_KERNEL=0`` measures the Python path).
+   alone. The line ``decision kernel`` says whether the decision ran compiled
+   (``runtime/core``, built at install) or as Python.
 2. **Process start -> first command**: ``patternrl robot`` started against a
    running stub world publishing step-0 poses. Budget: <= 1 s.
 3. **RSS** of a running robot process (rule and ONNX brains). Budget: <= 150 MB.
@@ -54,7 +54,7 @@ from runtime.brain import (  # noqa: E402
     validate_brain_bytes,
 )
 from runtime.controller import Controller  # noqa: E402
-from runtime.kernel import kernel_status  # noqa: E402
+from runtime.core import kernel_status  # noqa: E402
 from runtime.observation import ObservationSpec  # noqa: E402
 from runtime.patterns import make_pattern  # noqa: E402
 from runtime.safety import OrcaParams  # noqa: E402

@@ -5,13 +5,13 @@ Rows, all measured in one run, side by side:
 * ``world``: ``BatchWorld.step`` at E envs x N robots (median of
   ``--repeats`` runs of ``--steps`` steps, random actions in the v_max disc,
   the three worlds timed in turn within each repeat so they share the load),
-  with and without the general observation, for three steps giving the same
-  values bit for bit: *former* (scipy's Hungarian per env every step, the
-  observation in the (E, N, ...) layout), *numpy* (the batched proof of
-  optimality, scipy only where it fails, the observation env-last;
-  ``compiled=False``) and *compiled* (:mod:`trainer.kernels`, numba; the
-  default). Each figure in wall time and in this thread's CPU time (the two
-  differ when other processes share the cores).
+  with and without the general observation, for two steps giving the same
+  assignments: *former* (scipy's Hungarian per env every step, the observation
+  built through the batch entry point) and *compiled* (the world's step: its
+  move, assignment and observation compiled at install from their one source,
+  :mod:`trainer.contacts` and :mod:`runtime.core`). Each figure in wall time and
+  in this thread's CPU time (the two differ when other processes share the
+  cores).
 * ``train``: agent-steps/s of whole iterations (rollout + update + held-out
   evaluation) for ``--train-s`` seconds: in-process, 1 and 2 Ray workers on
   a local instance, in turn for ``--rounds`` rounds (median; Ray's own start
@@ -97,8 +97,7 @@ class FormerWorld(BatchWorld):
 def world_rates(E: int, N: int, obs: bool, steps: int, repeats: int) -> dict[str, dict[str, int]]:
     """Median agent-steps/s (wall and thread CPU) of each step, timed in turn (random actions)."""
     worlds = {
-        "former": FormerWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs, compiled=False),
-        "numpy": BatchWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs, compiled=False),
+        "former": FormerWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs),
         "compiled": BatchWorld(E, N, PATTERNS, SPEC, seed=0, build_obs=obs),
     }
     rng = np.random.default_rng(0)

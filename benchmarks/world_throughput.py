@@ -9,9 +9,9 @@ when other processes share the machine). Rows:
 
 * ``obs=general`` builds the general observation every step (what the trainer
   uses); ``obs=none`` skips it (``build_obs=False``): the world's own cost.
-* ``step=numpy`` is the numpy path (``compiled=False``), ``step=compiled``
-  the default (:mod:`trainer.kernels`, numba; the same numbers bit for bit),
-  timed one after the other on the same seed and actions.
+* ``step=compiled``: the world's one step (its move, assignment and observation
+  compiled at install from their one source, :mod:`trainer.contacts` and
+  :mod:`runtime.core`).
 * ``policy=random``: uniform random velocities in the v_max disc, like an
   untrained policy. ``policy=to-slot``: full speed straight at the slot, with
   a little noise and no avoidance: robots collide and jam all the time, the
@@ -80,7 +80,7 @@ def time_world(
 ) -> Row:
     w = BatchWorld(
         n_envs, n_robots, PATTERNS, ObservationSpec("general"), seed=seed,
-        build_obs=obs != "none", compiled=step == "compiled",
+        build_obs=obs != "none",
     )
     rng = np.random.default_rng(seed)
     for _ in range(100):  # warm up into mid-episode states
@@ -127,11 +127,10 @@ def main(argv: list[str] | None = None) -> int:
 
     load0 = os.getloadavg()[0]
     rows = [
-        time_world(args.envs, n, obs, policy, args.steps, args.repeats, step=step)
+        time_world(args.envs, n, obs, policy, args.steps, args.repeats)
         for n in args.robots
         for obs in ("none", "general")
         for policy in ("random", "to-slot")
-        for step in ("numpy", "compiled")
     ]
     load1 = os.getloadavg()[0]
     meta = {

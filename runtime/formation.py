@@ -10,15 +10,18 @@ Formation error
 
 Shared assignment
     Every robot computes the same assignment from the same poses: robots are
-    ordered by id, the cost matrix is built in that order, and
-    ``scipy.optimize.linear_sum_assignment`` is deterministic on identical
-    input, so ties are broken identically everywhere (by the solver's fixed
-    scan order over robot ids, then slot index). A previous assignment is kept
-    unless the new one is better by more than a hysteresis margin, so tiny
-    differences between robots' frames (realtime mode) do not flip slots.
-    The robot solves it with :func:`assign_centred` (it caches the centred
-    pattern), the batch with :func:`assign_slots_batch`: one cost, one solver,
-    one hysteresis rule (:func:`keeps_previous`).
+    ordered by id, the cost matrix is built in that order, and the solver
+    (:mod:`runtime.core.assignment`: scipy's ``linear_sum_assignment``
+    algorithm, step for step, warm-started from the last step's slot
+    potentials) is deterministic on identical input, so ties are broken
+    identically everywhere (by the solver's fixed scan order over robot ids,
+    then slot index). A previous assignment is kept unless the new one is
+    better by more than a hysteresis margin, so tiny differences between
+    robots' frames (realtime mode) do not flip slots. :func:`assign_centred`,
+    :func:`assign_slots`, :func:`assign_slots_batch` and
+    :func:`assign_slots_env_last` are that module's one solver and one rule
+    on costs built here (:func:`centred_cost`); :func:`keeps_previous` is the
+    rule on numpy sums.
 
 Collisions and contacts
     :func:`swept_pair_distance` (closest approach along straight moves) is the
@@ -37,20 +40,18 @@ import functools
 import importlib.machinery
 import importlib.util
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from runtime.assignment import certify_assignment, is_permutation, taken_index
+from runtime.core.assignment import HYSTERESIS_ABS_M2 as HYSTERESIS_ABS_M2
+from runtime.core.assignment import HYSTERESIS_REL as HYSTERESIS_REL
+from runtime.core.assignment import assign_costs, assign_team
+from runtime.core.plan_frame import min_enclosing_circle
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-
-#: Keep the previous assignment unless the new one lowers the summed squared
-#: distance by more than this fraction (plus a small absolute floor).
-HYSTERESIS_REL = 1e-3
-HYSTERESIS_ABS_M2 = 1e-6
 
 
 def _load_lsap() -> Callable[..., Any]:
@@ -124,13 +125,13 @@ def assign_centred(Pc: Array, Cc: Array, previous: IntArray | None = None) -> In
     The robot's path: it caches the centred pattern and needs the team's centroid
     anyway, so nothing is centred twice.
     """
-    cost = centred_cost(Pc, Cc)
-    cols: IntArray = linear_sum_assignment(cost)[1]
-    if previous is not None and len(previous) == len(cols) and previous.tolist() != cols.tolist():
-        rows = np.arange(len(cols))
-        if keeps_previous(cost[rows, cols].sum(), cost[rows, previous].sum()):
-            return previous
-    return cols
+    cost = np.ascontiguousarray(centred_cost(Pc, Cc))
+    n = cost.shape[0]
+    slots: IntArray = np.empty(n, dtype=np.int64)
+    has_prev = previous is not None and len(previous) == n
+    prev = np.ascontiguousarray(previous, dtype=np.int64) if has_prev else slots
+    assign_team(cost, prev, has_prev, np.zeros(n), slots)
+    return slots
 
 
 def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
@@ -140,32 +141,21 @@ def assign_slots(P: Array, C: Array, previous: IntArray | None = None) -> IntArr
     centred pattern. With ``previous`` (a permutation from the last step) the
     old assignment is kept unless the new one is better by the hysteresis margin.
     """
-    prev = None if previous is None else np.asarray(previous, dtype=np.int64)
-    return assign_centred(centred(P), centred(C), prev).astype(np.int64)
+    return assign_centred(centred(P), centred(C), previous)
 
 
 def assign_slots_batch(P: Array, C: Array, previous: IntArray | None = None) -> IntArray:
     """:func:`assign_slots` over a batch: P (E, n, 2), C (n, 2) or (E, n, 2) -> (E, n).
 
-    With ``previous`` (E, n) the envs whose previous assignment is proven still
-    optimal keep it without a solve (:func:`assign_slots_env_last`); the result
-    is the same as solving every env and applying the hysteresis rule.
+    With ``previous`` (E, n) each env keeps it under the hysteresis rule (an env
+    whose ``previous`` is not a permutation takes the solver's assignment).
     """
-    cost = _sq_cost(P, np.broadcast_to(C, P.shape))
-    if previous is None:
-        return _solve_each(cost, np.arange(cost.shape[0]))
-    prev = np.asarray(previous, dtype=np.int64)
-    out: IntArray = assign_slots_env_last(
-        np.ascontiguousarray(cost.transpose(1, 2, 0)), np.ascontiguousarray(prev.T)
-    ).T
-    return np.ascontiguousarray(out)
-
-
-def _solve_each(cost: Array, envs: IntArray) -> IntArray:
-    """scipy's assignment of each env of ``envs``: cost (E, n, n) -> (len(envs), n)."""
-    slots = np.empty((len(envs), cost.shape[-1]), dtype=np.int64)
-    for r, e in enumerate(envs):  # one C call per env; scipy has no batched solver
-        slots[r] = linear_sum_assignment(cost[e])[1]
+    cost = np.ascontiguousarray(_sq_cost(P, np.broadcast_to(C, P.shape)))
+    E, n = cost.shape[0], cost.shape[-1]
+    slots: IntArray = np.empty((E, n), dtype=np.int64)
+    has_prev = previous is not None
+    prev = np.asarray(previous, dtype=np.int64) if has_prev else slots
+    assign_costs(cost, prev, has_prev, np.zeros((E, n)), slots)
     return slots
 
 
@@ -175,47 +165,24 @@ def assign_slots_env_last(
     """The shared assignment with hysteresis, env-last: ``cost`` (n, n, E), ``previous`` (n, E).
 
     ``cost[i, j, e]``: squared distance (m^2) of centred robot i to centred
-    slot j (:func:`centred_cost`'s values). Returns slots (n, E), exactly what
-    solving every env with scipy and applying :func:`keeps_previous` gives:
-    an env where no assignment is proven to beat ``previous`` by half the
-    hysteresis margin (:func:`runtime.assignment.certify_assignment`) would
-    keep it under the rule whatever scipy returned, so it keeps it unsolved;
-    the others are solved and the rule applied. A ``previous`` that is not a
-    permutation is never certified: it goes through the solver and the rule.
+    slot j (:func:`centred_cost`'s values). Returns slots (n, E): what solving
+    every env with scipy's solver and applying :func:`keeps_previous` gives
+    (ties aside). A ``previous`` that is not a permutation is replaced by the
+    solver's assignment.
 
-    ``potentials`` (n, E), optional, is the certificate's state carried from
-    call to call (zeros at first); it is updated in place, and makes the
-    proof one Bellman-Ford round on most steps.
+    ``potentials`` (n, E), optional, is the solver's slot potentials carried
+    from call to call (zeros at first); updated in place, it lets the solver
+    keep, unsolved, the previous slots still proven optimal
+    (:func:`runtime.core.assignment.assign_team`).
     """
     n, E = previous.shape
-    cost = np.ascontiguousarray(cost)
-    valid = is_permutation(previous)
-    whole = bool(valid.all())
-    ok = slice(None) if whole else np.flatnonzero(valid)
-    c, p = (cost, previous) if whole else (cost[:, :, ok], previous[:, ok])
-    k = c.shape[2]
-    old = c.reshape(n, n * k)[np.arange(n)[:, None], taken_index(p)].sum(axis=0)  # (k,) m^2
-    # half the hysteresis margin, shared over at most n exchange cycles: a proof
-    # that nothing beats ``previous`` by that much is a proof the rule keeps it
-    tol = (HYSTERESIS_REL * old + HYSTERESIS_ABS_M2) * (0.5 / n)
-    start = None if potentials is None else potentials[:, ok]
-    cert = certify_assignment(c, p, tol, start)
-    kept = np.zeros(E, dtype=bool)
-    kept[ok] = cert.settled
-    if potentials is not None:
-        potentials[:, ok] = cert.potentials
-    slots = previous.copy()
-    todo = np.flatnonzero(~kept)
-    if len(todo):
-        sub = cost[:, :, todo].transpose(2, 0, 1)  # (m, n, n)
-        fresh = _solve_each(sub, np.arange(len(todo)))  # (m, n)
-        new = np.take_along_axis(sub, fresh[..., None], -1)[..., 0].sum(-1)
-        old_sub = np.take_along_axis(sub, previous[:, todo].T[..., None], -1)[..., 0].sum(-1)
-        keep = keeps_previous(new, old_sub)
-        slots[:, todo] = np.where(keep[None, :], previous[:, todo], fresh.T)
-        if potentials is not None:  # a new assignment is a new exchange graph
-            potentials[:, todo[~keep]] = 0.0
+    c = np.ascontiguousarray(np.asarray(cost, dtype=np.float64).transpose(2, 0, 1))
+    prev = np.asarray(previous, dtype=np.int64)
+    pot = np.zeros((n, E)) if potentials is None else potentials
+    slots: IntArray = np.empty((n, E), dtype=np.int64)
+    assign_costs(c, prev.T, True, pot.T, slots.T)
     return slots
+
 
 def slot_positions(P: Array, C: Array, slots: IntArray) -> Array:
     """World position of each robot's slot: the centred pattern placed on the team's centroid."""
@@ -260,46 +227,6 @@ def is_formed(P: Array, C: Array, tol: float = DEFAULT_WORLD.formed_tol_m) -> bo
 
 
 # ---------------------------------------------------------------- lower bounds
-
-
-def _min_enclosing_circle(pts: Array | Sequence[Sequence[float]]) -> tuple[Array, float]:
-    """Exact smallest enclosing circle (Welzl, iterative move-to-front). O(n) expected."""
-    p = [(float(q[0]), float(q[1])) for q in pts]
-
-    def circ2(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float, float]:
-        cx, cy = (a[0] + b[0]) / 2, (a[1] + b[1]) / 2
-        return cx, cy, math.hypot(a[0] - cx, a[1] - cy)
-
-    def circ3(
-        a: tuple[float, float], b: tuple[float, float], c: tuple[float, float]
-    ) -> tuple[float, float, float]:
-        ax, ay = a
-        bx, by = b[0] - ax, b[1] - ay
-        cx, cy = c[0] - ax, c[1] - ay
-        d = 2 * (bx * cy - by * cx)
-        if abs(d) < 1e-18:  # collinear: the widest pair
-            cands = [circ2(a, b), circ2(a, c), circ2(b, c)]
-            return max(cands, key=lambda k: k[2])
-        ux = (cy * (bx * bx + by * by) - by * (cx * cx + cy * cy)) / d
-        uy = (bx * (cx * cx + cy * cy) - cx * (bx * bx + by * by)) / d
-        return ux + ax, uy + ay, math.hypot(ux, uy)
-
-    def inside(c: tuple[float, float, float], q: tuple[float, float]) -> bool:
-        return math.hypot(q[0] - c[0], q[1] - c[1]) <= c[2] * (1 + 1e-12) + 1e-12
-
-    c = (p[0][0], p[0][1], 0.0)
-    for i in range(1, len(p)):
-        if inside(c, p[i]):
-            continue
-        c = (p[i][0], p[i][1], 0.0)
-        for j in range(i):
-            if inside(c, p[j]):
-                continue
-            c = circ2(p[i], p[j])
-            for k in range(j):
-                if not inside(c, p[k]):
-                    c = circ3(p[i], p[j], p[k])
-    return np.array([c[0], c[1]]), c[2]
 
 
 def _bottleneck_assignment(dist: Array) -> IntArray:
@@ -401,7 +328,8 @@ def lower_bound_distance(P: Array, C: Array) -> float:
     Pc = np.asarray(P, np.float64)
     Cc = np.asarray(C, np.float64)
     d0 = Pc - Cc[assign_slots(Pc, Cc)]
-    starts = [Pc.mean(0) - Cc.mean(0), _min_enclosing_circle(d0)[0], *d0[: min(len(d0), 8)]]
+    cx, cy, _ = min_enclosing_circle(d0)
+    starts = [Pc.mean(0) - Cc.mean(0), np.array([cx, cy]), *d0[: min(len(d0), 8)]]
     best = math.inf
     seen: dict[bytes, float] = {}  # assignment -> its enclosing radius: starts often converge
     for t in starts:
@@ -413,7 +341,8 @@ def lower_bound_distance(P: Array, C: Array) -> float:
             if key in seen:
                 prev = min(prev, seen[key])
                 break
-            t, r = _min_enclosing_circle(Pc - Cc[cols])
+            cx, cy, r = min_enclosing_circle(Pc - Cc[cols])
+            t = np.array([cx, cy])
             seen[key] = r
             if r >= prev - 1e-12:
                 prev = min(prev, r)

@@ -81,10 +81,10 @@ import zenoh
 from runtime import keys
 from runtime.brain import Brain, BrainError, load_brain, short_id
 from runtime.controller import Controller
+from runtime.core import kernel_status
 from runtime.decision import Decision
 from runtime.errors import InputError
 from runtime.inbox import PoseInbox, Step
-from runtime.kernel import kernel_status
 from runtime.log import Log, one_line
 from runtime.messages import Command, MessageError, decode_pattern, encode_command, encode_status
 from runtime.patterns import PatternError

@@ -42,9 +42,8 @@ class RobotConfig:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Every option of ``patternrl robot``."""
     parser.epilog = (
-        "environment: PATTERNRL_KERNEL=0 decides in Python instead of the compiled kernel "
-        "(the same numbers, slower; the start line says which runs); ZENOH_RUNTIME sets "
-        "Zenoh's threads (default here: one)"
+        "environment: ZENOH_RUNTIME sets Zenoh's threads (default here: one); the start line "
+        "says whether the decision runs compiled (runtime/core, built at install)"
     )
     parser.add_argument("--swarm", required=True, help="swarm name ([A-Za-z0-9_-]+)")
     parser.add_argument("--id", type=int, required=True, help="this robot's id (>= 0)")

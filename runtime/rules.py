@@ -45,15 +45,13 @@ general observation row is ``rule:assign``'s (the only thing one row allows).
 
 from __future__ import annotations
 
-import math
 from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
 from runtime.brain_manifest import BrainManifest
-from runtime.formation import _min_enclosing_circle
-from runtime.kernel import use_kernel
+from runtime.core.plan_frame import plan_frame, plan_frames
 from runtime.observation import ObservationSpec
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -67,10 +65,6 @@ __all__ = [
     "plan_targets",
     "straight_to_slot",
 ]
-
-_STEP_TOL: Final = 1e-9
-"""Relative slack in ``ceil(distance / reach)``: a distance that is a whole number
-of steps up to rounding counts as that many steps, not one more."""
 
 FRAME_RULES: Final[dict[str, float]] = {
     "rule:frame": 0.0,
@@ -112,20 +106,13 @@ def plan_targets(
     points of the pattern translated by the frame ``t``; steps_left (E,): ``K``,
     the whole steps the farthest robot needs at v_max, at least 1).
     """
-    p = np.asarray(pos, dtype=np.float64)
+    p = np.ascontiguousarray(pos, dtype=np.float64)
     target = np.take_along_axis(np.asarray(pattern, dtype=np.float64), slots[..., None], axis=-2)
-    d = p - target  # (E, n, 2) displacement from the slot at t = 0
     E = p.shape[0]
-    t = d.mean(axis=1)  # (E, 2) centroid frame
-    if travel_weight < 1.0:
-        for e in range(E):  # Welzl's circle is a Python loop: one call per team
-            c, _ = _min_enclosing_circle(d[e])
-            t[e] = c + travel_weight * (t[e] - c)
+    t = np.empty((E, 2))
+    k = np.empty(E)
+    plan_frames(p, target, travel_weight, world.v_max_mps * world.dt_s, t, k)
     target += t[:, None, :]
-    s = target - p  # slot vector (m)
-    dist = np.hypot(s[..., 0], s[..., 1])
-    reach = world.v_max_mps * world.dt_s
-    k = np.maximum(np.ceil(dist.max(axis=1) / reach - _STEP_TOL), 1.0)  # (E,) steps left
     return target, k
 
 
@@ -157,122 +144,49 @@ def plan_step(
     return out, k
 
 
-SUPPORT_SLACK_M: Final = 1e-4
-"""How far outside the last support's circle a displacement may lie and the support be kept
-(:class:`PlanFrame`), metres."""
-
-SMALL_TEAM: Final = 24
-"""Team size from which :class:`PlanFrame` works on arrays (below it, on plain floats)."""
-
-
 class PlanFrame:
     """:func:`plan_targets` for one team, step after step: the robot's path.
 
-    The same numbers (to rounding) with less work: the smallest circle enclosing
-    the displacements is first tried as the circle of the last step's support
-    (the two or three displacements on its boundary). That circle is the
-    smallest of all exactly when it encloses every displacement (the smallest
-    circle of a subset is never larger, and the smallest one is unique), which
-    under the plan holds step after step (the displacements shrink
+    The same numbers (to the support's slack) with less work: the smallest
+    circle enclosing the displacements is first tried as the circle of the last
+    step's support (the two or three displacements on its boundary). That circle
+    is the smallest of all exactly when it encloses every displacement (the
+    smallest circle of a subset is never larger, and the smallest one is unique),
+    which under the plan holds step after step (the displacements shrink
     homothetically); otherwise Welzl's algorithm runs and finds the new support.
-    A displacement at most :data:`SUPPORT_SLACK_M` outside the old support's circle
-    keeps it: a team holding its pattern jitters by tens of micrometres (a learned
-    brain's small residual), which would otherwise re-solve every step, and the
-    frame then moves by at most that slack (0.1 mm), far below the formed
-    tolerance (25 mm).
+    A displacement at most :data:`runtime.core.plan_frame.SUPPORT_SLACK_M` (0.1 mm)
+    outside the old support's circle keeps it: a team holding its pattern jitters
+    by tens of micrometres (a learned brain's small residual), which would
+    otherwise re-solve every step, and the frame then moves by at most that slack,
+    far below the formed tolerance (25 mm). The solve is
+    :func:`runtime.core.plan_frame.plan_frame`; this object holds the support and
+    the scratch between steps.
     """
 
     def __init__(self, compiled: bool | None = None) -> None:
-        """``compiled``: solve with :mod:`runtime.kernel` (None: when it is built; True
-        requires it); False runs the Python reference."""
-        self._support: list[int] = []
-        self._kernel = use_kernel(compiled)
-        self._sup = np.zeros(4, dtype=np.int64)  # the kernel's support: [count, j0, j1, j2]
-        self._d = np.zeros((0, 2))  # the kernel's displacements (scratch)
+        """``compiled`` is accepted for the callers that pass it and has no effect: the
+        solve is :mod:`runtime.core.plan_frame`, compiled when the install built it."""
+        self._sup = np.zeros(4, dtype=np.int64)  # the support: [count, j0, j1, j2]
+        self._d = np.zeros((0, 2))  # the displacements (scratch)
 
     def solve(self, pos: Array, slot_points: Array, travel_weight: float,
               world: WorldConfig = DEFAULT_WORLD) -> tuple[Array, float]:
         """``pos`` (n, 2) positions, ``slot_points`` (n, 2) each robot's pattern point (any
         translation of the pattern). Returns (the frame ``t`` (2,), steps left ``K``):
         robot j's slot is ``slot_points[j] + t``."""
-        if self._kernel is not None:
-            tx, ty, k = self.solve_floats(pos, slot_points, travel_weight, world)
-            return np.array([tx, ty]), k
-        n = len(pos)
-        if n < SMALL_TEAM:
-            return self._solve_lists(pos.tolist(), slot_points.tolist(), travel_weight, world)
-        d = pos - slot_points
-        centre: Array | None = None
-        if self._support and max(self._support) < n:
-            c, r = _min_enclosing_circle(d[self._support])
-            gap = np.hypot(d[:, 0] - c[0], d[:, 1] - c[1])
-            if (gap <= r * (1 + 1e-12) + SUPPORT_SLACK_M).all():
-                centre = c
-        if centre is None:
-            centre, r = _min_enclosing_circle(d)
-            gap = np.hypot(d[:, 0] - centre[0], d[:, 1] - centre[1])
-            self._support = np.flatnonzero(gap >= r * (1 - 1e-9) - 1e-12)[:3].tolist()
-        t = centre + travel_weight * (np.add.reduce(d, 0) / n - centre)
-        s = t - d
-        far = float(np.sqrt((s * s).sum(axis=1).max()))
-        k = max(math.ceil(far / (world.v_max_mps * world.dt_s) - _STEP_TOL), 1)
-        return t, float(k)
+        tx, ty, k = self.solve_floats(pos, slot_points, travel_weight, world)
+        return np.array([tx, ty]), k
 
     def solve_floats(self, pos: Array, slot_points: Array, travel_weight: float,
                      world: WorldConfig = DEFAULT_WORLD) -> tuple[float, float, float]:
-        """:meth:`solve` as plain floats (tx, ty, K): the compiled kernel's own answer."""
-        kern = self._kernel
-        if kern is None:
-            t, k = self.solve(pos, slot_points, travel_weight, world)
-            tx, ty = t.tolist()
-            return tx, ty, k
+        """:meth:`solve` as plain floats (tx, ty, K)."""
         n = len(pos)
-        if self._d.shape[0] != n:
+        if self._d.shape[0] < n:
             self._d = np.zeros((n, 2))
-        out: tuple[float, float, float] = kern.plan_frame(
+        return plan_frame(
             np.ascontiguousarray(pos, dtype=np.float64),
             np.ascontiguousarray(slot_points, dtype=np.float64),
             self._d, travel_weight, world.v_max_mps * world.dt_s, self._sup)
-        return out
-
-    def _solve_lists(self, L: list[list[float]], Q: list[list[float]], travel_weight: float,
-                     world: WorldConfig) -> tuple[Array, float]:
-        """:meth:`solve` on plain floats: below :data:`SMALL_TEAM` robots a dozen numpy calls
-        cost more than the arithmetic."""
-        d: list[tuple[float, float]] = []
-        mx = my = 0.0
-        for p, q in zip(L, Q, strict=True):
-            x, y = p[0] - q[0], p[1] - q[1]
-            d.append((x, y))
-            mx += x
-            my += y
-        n = len(d)
-        hypot = math.hypot
-        found = False
-        if self._support and max(self._support) < n:
-            c, r = _min_enclosing_circle([d[j] for j in self._support])
-            cx, cy = float(c[0]), float(c[1])
-            lim = r * (1 + 1e-12) + SUPPORT_SLACK_M
-            found = True
-            for x, y in d:
-                if hypot(x - cx, y - cy) > lim:
-                    found = False
-                    break
-        if not found:
-            c, r = _min_enclosing_circle(d)
-            cx, cy = float(c[0]), float(c[1])
-            lim = r * (1 - 1e-9) - 1e-12
-            on = [j for j, (x, y) in enumerate(d) if hypot(x - cx, y - cy) >= lim]
-            self._support = on[:3]
-        tx = cx + travel_weight * (mx / n - cx)
-        ty = cy + travel_weight * (my / n - cy)
-        far = 0.0
-        for x, y in d:
-            g = hypot(tx - x, ty - y)
-            if g > far:
-                far = g
-        k = max(math.ceil(far / (world.v_max_mps * world.dt_s) - _STEP_TOL), 1)
-        return np.array([tx, ty]), float(k)
 
 
 class FrameRule:

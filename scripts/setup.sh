@@ -5,9 +5,9 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 # the stamp covers what the install builds from: a changed kernel is rebuilt
-stamp=".venv/.installed-$(cat pyproject.toml constraints.txt setup.py runtime/_kernel.c \
+stamp=".venv/.installed-$(cat pyproject.toml constraints.txt setup.py runtime/core/*.py trainer/contacts.py \
     | sha256sum | cut -c1-16)"
-# the robots' compiled decision kernel (runtime/_kernel.c) needs a C compiler; without one the
+# the compiled decision (runtime/core, Cython at install) needs a C compiler; without one the
 # install goes on and the robots decide in Python (the same numbers, slower)
 if [ ! -f "$stamp" ] && ! command -v cc >/dev/null && [ "$(id -u)" -eq 0 ] \
         && command -v apt-get >/dev/null; then

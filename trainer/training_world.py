@@ -3,9 +3,11 @@
 Public arrays are ``(E, N, ...)`` (envs, robots, ...), in metres, seconds, m/s.
 Inside, positions are ``(2, N, E)`` and pair arrays ``(N, N, E)``: the env axis
 innermost gives numpy long inner loops (~5x faster than ``(E, N, N, 2)``). Steps
-1-4 and the general observation run as compiled loops over envs
-(:mod:`trainer.kernels`, numba; ``compiled=False`` keeps numpy): the same
-numbers bit for bit, without numpy's per-call overhead or scipy's per-env call.
+1-3, the move, are one call of :func:`trainer.contacts.move`; step 4 is
+:func:`runtime.core.assignment.assign_teams` and the general observation
+:class:`runtime.core.general_row.GeneralRows`, the very functions every robot runs:
+each one source, compiled at install (else run as Python: the same numbers), one
+loop over envs without numpy's per-call overhead or scipy's per-env call.
 
 Step (``BatchWorld.step``), in order
     1. **Actions** ``(E, N, 2)`` are velocities in m/s. A robot whose action
@@ -59,8 +61,9 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from runtime.formation import assign_slots_batch, assign_slots_env_last, lower_bounds
-from runtime.observation import ObservationSpec, general_observation_env_last, observe, plan_pace
+from runtime.core.assignment import assign_teams
+from runtime.formation import assign_slots_batch, lower_bounds
+from runtime.observation import ObservationSpec, general_observation, observe
 from runtime.patterns import make_pattern, random_pattern
 from runtime.rules import plan_targets
 from runtime.types import Array, BoolArray, F32Array, IntArray
@@ -68,11 +71,6 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.contacts import move
 from trainer.rank import rank_goals
 from trainer.reward import DEFAULT_REWARD, PAPER_REWARD, RewardConfig, step_reward
-
-try:  # the compiled step (numba, in the ``train`` extra); the numpy path is the reference
-    from trainer import kernels as _kernels
-except ImportError:  # pragma: no cover
-    _kernels = None  # type: ignore[assignment]
 
 RANDOM_PATTERN = "random"
 
@@ -124,11 +122,6 @@ def _pattern_list(patterns: Sequence[str | Path] | str | Path) -> tuple[str, ...
     return names
 
 
-def _robot_major(P: Array) -> Array:
-    """(E, N, 2) -> (2, N, E), contiguous."""
-    return np.ascontiguousarray(P.transpose(2, 1, 0))
-
-
 def _env_major(X: Array) -> Array:
     """(2, N, E) -> (E, N, 2), contiguous."""
     return np.ascontiguousarray(X.transpose(2, 1, 0))
@@ -154,7 +147,6 @@ class BatchWorld:
         step_limit: int | None = None,
         build_obs: bool = True,
         first_env: int = 0,
-        compiled: bool = True,
         rank_goals: bool = False,
     ) -> None:
         if n_envs < 1:
@@ -181,12 +173,9 @@ class BatchWorld:
         if self.step_limit < 1:
             raise ValueError(f"step_limit must be >= 1, got {self.step_limit}")
         self.build_obs, self.rank_goals = build_obs, rank_goals
-        # compiled kernels (trainer.kernels) where numba is installed: the same numbers
-        self.compiled = bool(compiled and _kernels is not None)
         self.obs_dim: int = obs_spec.dim if build_obs else 0
 
         E, N = n_envs, n_robots
-        self._two_r = world.min_separation_m
         self._reach = world.max_step_m
         self._formed_tol2 = world.formed_tol_m**2
         self._lower = np.tril(np.ones((N, N), dtype=bool), -1)  # [i, j]: j < i
@@ -219,12 +208,7 @@ class BatchWorld:
         self._dist: Array = np.zeros((N, E))  # |position - slot|
         self._travel: Array = np.zeros((N, E))
         self.plan_steps_left: Array = np.ones(E)  # plan observation: each team's K, as observed
-        # shared "no contact this step" results, read-only so they can be handed out
-        self._no_hits: IntArray = np.zeros((N, E), dtype=np.int64)
-        self._no_collisions: IntArray = np.zeros(E, dtype=np.int64)
-        self._no_hits.flags.writeable = False
-        self._no_collisions.flags.writeable = False
-        self._hits: IntArray = self._no_hits
+        self._hits: IntArray = np.zeros((N, E), dtype=np.int64)  # collisions of the last step
         self._obs: F32Array = np.zeros((E, N, self.obs_dim), dtype=np.float32)
         self.reset()
 
@@ -421,21 +405,18 @@ class BatchWorld:
         if not self.build_obs:
             return self._no_obs if ids is None else self._no_obs[: len(ids)]
         spec = self.obs_spec
-        if spec.needs_slots:  # the same values, built env-last (faster)
-            X = self._X if ids is None else self._X[:, :, ids]
-            G = self._G if ids is None else self._G[:, :, ids]
-            X_prev = self.frames[sel, 1].transpose(2, 1, 0)
-            k, K = spec.k_neighbours, None
+        if spec.needs_slots:  # the rows every robot builds (runtime.core.general_row)
+            P = self.frames[sel, 0]
+            K = None
             if spec.name == "plan":  # the slots in the plan's frame, and its pace
                 slots = self._slots.T if ids is None else self._slots[:, ids].T
-                T, K = plan_targets(self.frames[sel, 0], self.pattern[sel], slots,
-                                    spec.travel_weight, self.world)
-                G, self.plan_steps_left[sel] = T.transpose(2, 1, 0), K
-            if self.compiled:
-                obs = _kernels.observe_general(X, X_prev, G, k, self.world)
+                G, K = plan_targets(P, self.pattern[sel], slots, spec.travel_weight, self.world)
+                self.plan_steps_left[sel] = K
             else:
-                obs = general_observation_env_last(X, X_prev, G, k, self.world)
-            return obs if K is None else plan_pace(obs, K, self.world)
+                G = (self._G if ids is None else self._G[:, :, ids]).transpose(2, 1, 0)
+            obs: F32Array = general_observation(P, self.frames[sel, 1], G, spec.k_neighbours,
+                                                self.world, steps_left=K, dtype=np.float32)
+            return obs
         return observe(self.obs_spec, self.frames[sel], None, None, self.world).astype(np.float32)
 
     def observe(self) -> F32Array:
@@ -444,60 +425,21 @@ class BatchWorld:
 
     # ------------------------------------------------------------------- step
 
-    def _velocities(self, actions: NDArray[np.floating]) -> Array:
-        """Actions as robot-major velocities (2, N, E), scaled down to v_max where faster.
-
-        A robot whose action is not finite (or so large its square overflows) holds still.
-        """
-        shape = (self.n_envs, self.n_robots, 2)
-        a = np.asarray(actions)
-        if a.shape != shape:
-            raise ValueError(f"actions must be {shape}, got {a.shape}")
-        V = _robot_major(a.astype(np.float64, copy=False))  # a copy: the caller's is untouched
-        speed2 = V[0] * V[0] + V[1] * V[1]
-        finite = np.isfinite(speed2)
-        if not finite.all():
-            V[:, ~finite] = 0.0
-            speed2[~finite] = 0.0
-        v = self.world.v_max_mps
-        V *= v / np.fmax(np.sqrt(speed2), v)  # min(1, v_max / |a|): direction kept
-        return V
-
-    def _move(self, V: Array) -> tuple[Array, IntArray, IntArray]:
-        """Kinematics and contacts (:func:`trainer.contacts.move`): (positions (2, N, E),
-        collisions per robot (N, E), colliding pairs per env (E,)); adds to the
-        episode's collisions and travel."""
-        X0 = self._X
-        X1, hits, collisions, fallbacks = move(X0, V * self.world.dt_s, self._two_r)
-        if hits is None or collisions is None:
-            hits, collisions = self._no_hits, self._no_collisions
-        else:
-            self.episode_collisions += collisions
-        self.contact_fallbacks += fallbacks
-        moved = X1 - X0
-        self._travel += np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
-        return X1, hits, collisions
-
     def _assign(self, X: Array) -> tuple[IntArray, Array, Array]:
         """The shared assignment at positions ``X`` (2, N, E), once per step.
 
         Returns (slots (N, E), slot positions (2, N, E), squared slot distances
         (N, E)): what ``assign_slots_batch(previous=...)`` (transposed),
-        ``slot_positions`` and ``slot_distances ** 2`` give. The cost matrix is
-        :func:`runtime.formation.centred_cost`'s, built env-last (the same
-        operations, so the same bits); most envs keep their slots on a proof of
-        optimality instead of a solve (:func:`assign_slots_env_last`).
+        ``slot_positions`` and ``slot_distances ** 2`` give. The assignment is
+        :func:`runtime.core.assignment.assign_teams` on (E, N, 2) views of the
+        robot-major arrays (no copy), warm from each env's slot potentials: most
+        envs keep their slots, proven optimal, without a solve.
         """
         n = self.n_robots
+        slots: IntArray = np.empty_like(self._slots)
+        assign_teams(X.transpose(2, 1, 0), self._Cc.transpose(2, 1, 0), self._slots.T, True,
+                     self._potentials.T, slots.T)
         total = X.sum(axis=1, keepdims=True)
-        Xc = X - total / n  # = centred(P)
-        Cc = self._Cc
-        dx = Xc[0][:, None, :] - Cc[0][None, :, :]  # (i, j, E): robot i to slot j
-        dy = Xc[1][:, None, :] - Cc[1][None, :, :]
-        dx *= dx
-        dy *= dy
-        dx += dy
-        slots = assign_slots_env_last(dx, self._slots, self._potentials)
         Q = np.take_along_axis(self._C, slots[None], axis=1)  # each robot's (centred) slot point
         G = Q + total * (1.0 / n)
         gap = X - G
@@ -546,16 +488,11 @@ class BatchWorld:
 
         Shapes inside: robot-major (2, N, E) and (N, E); returned (E, N, ...).
         """
-        if self.compiled:  # 1-4 in two compiled passes over the envs, the same numbers
-            X1, hits, collisions, falls = _kernels.move(actions, self._X, self._travel, self.world)
-            self.episode_collisions += collisions
-            self.contact_fallbacks += falls
-            K = self._Cc, self._C, self._slots, self._potentials
-            slots, G, dist2, _ = _kernels.assign_env_last(X1, *K)
-        else:
-            V = self._velocities(actions)  # 1. actions -> velocities
-            X1, hits, collisions = self._move(V)  # 2-3. kinematics, contacts
-            slots, G, dist2 = self._assign(X1)  # 4. shared assignment
+        # 1-3. actions -> velocities, kinematics, contacts; travel added in place
+        X1, hits, collisions, falls = move(actions, self._X, self._travel, self.world)
+        self.episode_collisions += collisions
+        self.contact_fallbacks += falls
+        slots, G, dist2 = self._assign(X1)  # 4. shared assignment
         P1 = _env_major(X1)
         error = np.sqrt(dist2.sum(axis=0) * (1.0 / self.n_robots))  # = formation_error_batch
         formed = dist2.max(axis=0) <= self._formed_tol2

@@ -85,13 +85,17 @@ def test_peer_to_peer_across_hosts_with_5_percent_loss(net: Net, swarm: tuple[st
 
 
 class StepWatcher:
-    """An operator's session in this (root) namespace: the highest step of the world's poses."""
+    """An operator's session in this (root) namespace: the highest step of the world's poses,
+    and whether the world's liveliness token has been seen (the session is connected)."""
 
     def __init__(self, keys_dir: Path, swarm: str, endpoint: str) -> None:
         conf = make_config("peer", [endpoint], [], identity=load_identity(keys_dir / "operator"))
         self.session = open_config(conf)
         self.step = -1
+        self.world_seen = False
         self.sub = self.session.declare_subscriber(keys.all_poses(swarm), self._on)
+        self.alive = self.session.liveliness().declare_subscriber(
+            keys.alive_key(swarm, keys.WORLD_ID), self._on_alive, history=True)
 
     def _on(self, sample: Any) -> None:
         try:
@@ -99,7 +103,11 @@ class StepWatcher:
         except MessageError:
             pass
 
+    def _on_alive(self, sample: Any) -> None:
+        self.world_seen = True
+
     def close(self) -> None:
+        self.alive.undeclare()
         self.sub.undeclare()
         self.session.close()
 
@@ -123,11 +131,18 @@ def test_link_cut_for_2_s_and_restored(net: Net, swarm: tuple[str, Path],
     log = tmp_path / "cut.mcap"
     world = start_world(net, w, name, keys_dir, log, "-l", f"tls/10.231.1.1:{PORT}",
                         "-l", f"tls/10.231.9.2:{PORT}")
-    start_robots(net, r, name, keys_dir, "-e", f"tls/10.231.1.1:{PORT}")
+    # the watcher is connected before any robot starts, so the world (waiting for its robots)
+    # cannot run ahead of it however busy the machine is
     watcher = StepWatcher(keys_dir, name, f"tls/10.231.9.2:{PORT}")
     try:
-        wait_for(lambda: watcher.step >= 10 or world.poll() is not None, 120,
-                 "the world to run 10 steps", poll=0.05)
+        wait_for(lambda: watcher.world_seen or world.poll() is not None, 120,
+                 "the watcher to see the world", poll=0.05)
+        assert world.poll() is None, net.log("world")[-3000:]
+        start_robots(net, r, name, keys_dir, "-e", f"tls/10.231.1.1:{PORT}")
+        # cut as soon as the run moves: a 3-robot circle needs tens of steps, a few at most
+        # have gone by
+        wait_for(lambda: watcher.step >= 1 or world.poll() is not None, 120,
+                 "the world to start stepping", poll=0.01)
         assert world.poll() is None, net.log("world")[-3000:]
         cut_at = watcher.step
         cut_for(net, r, robots_end, 2.0).join(timeout=30)

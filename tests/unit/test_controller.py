@@ -1,4 +1,4 @@
-"""The per-robot controller and the batch decision path."""
+"""The per-robot controller and the batch decision path: one pipeline, two callers."""
 
 from __future__ import annotations
 
@@ -10,19 +10,16 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 from test_brain import mlp_model  # tests/unit is on sys.path (pytest rootdir mode)
+from test_observation import reference_rows
 
 from runtime import formation
 from runtime.brain import BrainManifest, RuleBrain, validate_brain_bytes
 from runtime.controller import Controller
-from runtime.decision import (
-    command,
-    decide_batch,
-    frame_velocities,
-    neighbour_rows,
-)
+from runtime.decision import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, commands, decide_batch
 from runtime.formation import assign_slots, formation_error, slot_positions
 from runtime.observation import ObservationSpec
 from runtime.patterns import make_pattern
+from runtime.rules import plan_targets
 from runtime.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD
 
@@ -37,8 +34,10 @@ class ConstBrain:
         self.spec = spec or ObservationSpec("general")
         self.manifest: BrainManifest | None = None
         self.v = v
+        self.seen: list[NDArray[Any]] = []  # the rows it was asked about, copied
 
     def act(self, obs: NDArray[Any]) -> NDArray[np.float64]:
+        self.seen.append(np.array(obs, copy=True))
         if self.v == (-1.0, -1.0):
             raise RuntimeError("broken brain")
         return np.tile(np.array(self.v, dtype=np.float64), (len(obs), 1))
@@ -133,8 +132,11 @@ def test_bad_brain_output_holds_still(v: tuple[float, float]) -> None:
     pos = spread(4, rng)
     c = Controller(ConstBrain(v), W)
     d = c.decide(1, pos, make_pattern("line", 4), 0)
-    assert d.velocity == (0.0, 0.0) and d.error
+    assert d.velocity == (0.0, 0.0) and not d.safety_changed
+    assert d.error == (ERR_BRAIN if v == (-1.0, -1.0) else ERR_NONFINITE)
+    assert d.slot >= 0  # the assignment was made before the brain ran
     if v != (-1.0, -1.0):  # the batch path holds a non-finite robot still too
+        assert d.brain_velocity == v or np.isnan(d.brain_velocity[0])
         frames = np.stack([pos, pos, pos])[None]
         vel, _, changed = decide_batch(ConstBrain(v), frames, make_pattern("line", 4))
         assert np.all(vel == 0.0) and not changed.any()
@@ -157,10 +159,11 @@ def test_wrong_pattern_size_or_paper_team_holds_still() -> None:
     rng = np.random.default_rng(2)
     pos = spread(5, rng)
     d = Controller(RuleBrain(), W).decide(0, pos, make_pattern("circle", 4), 0)
-    assert d.velocity == (0.0, 0.0) and d.error
+    assert d.velocity == (0.0, 0.0) and d.error == ERR_TEAM
     paper = ConstBrain((0.1, 0.0), ObservationSpec("paper", n_robots=4))
     d = Controller(paper, W).decide(0, pos, make_pattern("circle", 5), 0)
-    assert d.velocity == (0.0, 0.0) and d.error
+    assert d.velocity == (0.0, 0.0) and d.error == ERR_TEAM
+    assert not paper.seen  # the brain was not asked
 
 
 def test_set_brain_takes_effect_next_decision() -> None:
@@ -196,29 +199,115 @@ def test_controller_assignment_is_the_shared_one() -> None:
             pos = pos + rng.uniform(-0.1, 0.1, pos.shape)
 
 
-def test_command_clamps_filters_and_refuses_non_finite() -> None:
-    assert command(float("nan"), 0.0, None, OrcaParams(), W) is None
-    cmd = command(3.0, 4.0, None, None, W)
-    assert cmd is not None and not cmd.changed
-    assert cmd.velocity == pytest.approx((0.6, 0.8))
-    # a neighbour dead ahead and closing: the filter changes the command
-    nb = ([0.0, 0.0], [[0.25, 0.0]], [[-1.0, 0.0]])
-    cmd = command(1.0, 0.0, nb, OrcaParams(), W)
-    assert cmd is not None and cmd.changed and cmd.change_mps > 0.0
-    assert np.hypot(*cmd.velocity) <= W.v_max_mps
+def test_the_assignment_stays_the_shared_one_while_a_team_forms_and_holds() -> None:
+    """Step after step the robot's solver starts warm from its last slots and potentials;
+    its slots are still every step those of assign_slots with the hysteresis rule."""
+    n = 30
+    rng = np.random.default_rng(3)
+    C = make_pattern("circle", n)
+    pos = rng.uniform(0.0, 4.0, (n, 2))
+    c = Controller(RuleBrain(), W, None)
+    ref = None
+    for t in range(120):
+        vel = np.array([c.decide(i, pos, C, t).velocity for i in range(n)])
+        ref = assign_slots(pos, C, ref)
+        assert c.previous_slots is not None
+        assert c.previous_slots.tolist() == ref.tolist(), t
+        pos = pos + W.dt_s * vel + rng.normal(0.0, 1e-3, pos.shape)  # a little noise
+    assert formation_error(pos, C) < 0.01  # it formed, and held under the noise
 
 
-def test_neighbour_rows_are_every_other_robot_in_id_order() -> None:
-    rng = np.random.default_rng(9)
-    pos, prev = rng.uniform(0, 3, (2, 6, 2))
-    V = frame_velocities(pos.tolist(), prev.tolist(), W.dt_s)
-    np.testing.assert_array_equal(np.array(V), (pos - prev) / W.dt_s)  # the builders' estimate
-    for i in range(6):
-        own, rel, nbv = neighbour_rows(i, pos.tolist(), V)
-        others = [j for j in range(6) if j != i]
-        np.testing.assert_array_equal(own, V[i])
-        np.testing.assert_array_equal(rel, pos[others] - pos[i])
-        np.testing.assert_array_equal(nbv, np.array(V)[others])
+def test_commands_clamp_filter_and_hold_a_non_finite_robot_still() -> None:
+    pos = np.array([[[0.0, 0.0], [0.25, 0.0], [3.0, 3.0]]])
+    prev = pos - [[[-0.1, 0.0], [0.1, 0.0], [0.0, 0.0]]]  # 0 and 1 closing at 1 m/s each
+    act = np.array([[[1.0, 0.0], [np.nan, 0.0], [3.0, 4.0]]])
+    vel, changed = commands(act, pos, prev, None, W)  # the clamp only
+    assert vel[0, 0].tolist() == [1.0, 0.0] and vel[0, 1].tolist() == [0.0, 0.0]
+    assert vel[0, 2].tolist() == pytest.approx([0.6, 0.8], abs=1e-15)
+    assert not changed.any()
+    vel, changed = commands(act.reshape(3, 2), pos, prev, OrcaParams(), W)  # (E n, 2) too
+    assert changed.tolist() == [[True, False, False]]  # 0 sees 1 closing: filtered
+    assert vel[0, 1].tolist() == [0.0, 0.0]  # a non-finite brain velocity holds still
+    assert vel[0, 0, 1] < -0.1 and np.hypot(*vel[0, 0]) <= W.v_max_mps  # it swerves right
+    assert vel[0, 2].tolist() == pytest.approx([0.6, 0.8], abs=1e-15)  # alone: clamped only
+
+
+@pytest.mark.parametrize("spec", [ObservationSpec("general", k_neighbours=3),
+                                  ObservationSpec("general", k_neighbours=9),
+                                  ObservationSpec("plan", k_neighbours=4, travel_weight=0.25)],
+                         ids=["general-3", "general-9", "plan-4"])
+def test_the_row_a_brain_reads_is_the_documented_row(spec: ObservationSpec) -> None:
+    """Through the controller a brain reads the row of the layout, built from the shared
+    assignment's slot (or the plan's) and the velocity estimate of the last two frames."""
+    rng = np.random.default_rng(12)
+    n = 7
+    C = make_pattern("heart", n)
+    pos = spread(n, rng, side=2.0)
+    brain = ConstBrain((0.0, 0.0), spec)
+    ctrls = [Controller(brain, W, None) for _ in range(n)]
+    prev, slots = pos, None
+    for t in range(3):
+        brain.seen.clear()
+        for i in range(n):
+            ctrls[i].decide(i, pos, C, t)
+        slots = assign_slots(pos, C, slots)  # with the hysteresis rule, as the robots
+        if spec.name == "plan":
+            target, K = plan_targets(pos[None], C[None], slots[None], spec.travel_weight, W)
+            want = reference_rows(pos, prev, target[0], spec.k_neighbours, W, float(K[0]))
+        else:
+            want = reference_rows(pos, prev, slot_positions(pos, C, slots), spec.k_neighbours)
+        got = np.concatenate(brain.seen)
+        assert got.shape == (n, spec.dim)
+        # the slot columns within the plan frame's rounding, the rest exactly
+        np.testing.assert_allclose(got[:, :4], want[:, :4], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(got[:, 4:], want[:, 4:])  # velocities, neighbours
+        prev, pos = pos, pos + rng.uniform(-0.05, 0.05, pos.shape)
+
+
+def test_a_repeated_step_refreshes_the_newest_frame() -> None:
+    """Realtime: the same step decided again replaces frame t and keeps t-1, so the
+    velocity estimate is the newest poses against the last step's."""
+    pos0 = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    pos1, pos1b = pos0 + 0.02, pos0 + 0.05
+    brain = ConstBrain((0.0, 0.0), ObservationSpec("general", k_neighbours=2))
+    c = Controller(brain, W, None)
+    C = make_pattern("line", 3)
+    c.decide(0, pos0, C, 0)
+    c.decide(0, pos1, C, 1)
+    np.testing.assert_allclose(brain.seen[-1][0, 4:6], [0.2, 0.2], rtol=1e-12)
+    c.decide(0, pos1b, C, 1)  # step 1 again, newer poses
+    np.testing.assert_allclose(brain.seen[-1][0, 4:6], [0.5, 0.5], rtol=1e-12)
+    c.decide(0, pos1b, C, 2)  # the next step shifts
+    np.testing.assert_array_equal(brain.seen[-1][0, 4:6], [0.0, 0.0])
+    c.decide(0, pos1b + 0.01, C, None)  # no step given: every call shifts
+    c.decide(0, pos1b + 0.03, C, None)
+    np.testing.assert_allclose(brain.seen[-1][0, 4:6], [0.2, 0.2], rtol=1e-12)
+
+
+def test_a_swapped_brain_with_another_width_reads_its_own_row() -> None:
+    rng = np.random.default_rng(6)
+    pos = spread(6, rng)
+    C = make_pattern("circle", 6)
+    narrow = ConstBrain((0.1, 0.0), ObservationSpec("general", k_neighbours=2))
+    wide = ConstBrain((0.0, 0.1), ObservationSpec("general", k_neighbours=8))
+    c = Controller(narrow, W, None)
+    assert c.decide(3, pos, C, 0).velocity == (0.1, 0.0)
+    c.set_brain(wide)
+    assert c.decide(3, pos, C, 1).velocity == (0.0, 0.1)
+    c.set_brain(narrow)
+    assert c.decide(3, pos, C, 2).velocity == (0.1, 0.0)
+    assert [r.shape for r in narrow.seen] == [(1, 16), (1, 16)]
+    assert [r.shape for r in wide.seen] == [(1, 46)]
+    mask = wide.seen[0][0, 6:].reshape(8, 5)[:, 4]
+    assert mask.tolist() == [1.0] * 5 + [0.0] * 3  # 5 others, padded to 8
+
+
+def test_a_numpy_integer_robot_index_decides_as_a_python_int() -> None:
+    pos = np.random.default_rng(0).uniform(0.0, 3.0, (5, 2))
+    C = make_pattern("circle", 5)
+    want = Controller(RuleBrain()).decide(2, pos, C, 0)
+    got = Controller(RuleBrain()).decide(np.int64(2), pos, C, 0)  # type: ignore[arg-type]
+    assert got.velocity == want.velocity and got.slot == want.slot
 
 
 @pytest.mark.parametrize("kind", ["rule", "onnx-general", "onnx-paper"])
@@ -263,10 +352,35 @@ def test_single_and_batch_paths_agree(kind: str, safety: OrcaParams | None) -> N
         assert changed_any  # the comparison covered filtered decisions too
 
 
+def test_controller_and_batch_agree_on_big_teams_with_the_filter() -> None:
+    """40 robots in a tight square, ORCA on: the robot's decisions are decide_batch's."""
+    rng = np.random.default_rng(8)
+    n = 40
+    C = make_pattern("circle", n)
+    pos = rng.uniform(0.0, 3.5, (n, 2))
+    ctrls = [Controller(RuleBrain()) for _ in range(n)]
+    prev_pos, prev_slots = pos, None
+    changed = 0
+    for t in range(12):
+        frames = np.stack([pos, prev_pos, prev_pos])[None]
+        vel, slots, ch = decide_batch(RuleBrain(), frames, C, prev_slots, OrcaParams())
+        for i in range(n):
+            d = ctrls[i].decide(i, pos, C, t)
+            assert d.slot == slots[0, i]
+            # the rule brain's one-row path takes math.hypot, its batch np.hypot:
+            # they may round the last bit differently, nothing else may differ
+            np.testing.assert_allclose(d.velocity, vel[0, i], rtol=1e-12, atol=1e-15)
+            assert d.safety_changed == ch[0, i]
+        changed += int(ch.sum())
+        prev_pos, prev_slots = pos, slots
+        pos = pos + 0.1 * vel[0]
+    assert changed > 0  # the filter acted
+
+
 def test_decision_reports_latency_and_filter() -> None:
     rng = np.random.default_rng(5)
     pos = spread(10, rng, side=1.5)
     c = Controller(ConstBrain((1.0, 0.0)), W)
     d = c.decide(0, pos, make_pattern("circle", 10), 0)
-    assert 0.0 < d.decision_us < 1e6
+    assert d.decision_us >= 0.0 and np.isfinite(d.decision_us)  # measured, not bounded
     assert d.safety_change_mps >= 0.0

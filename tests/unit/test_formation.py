@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from runtime.core.plan_frame import min_enclosing_circle
 from runtime.formation import (
-    _min_enclosing_circle,
     _weiszfeld,
     assign_centred,
     assign_slots,
@@ -45,7 +45,7 @@ def brute_force(P: np.ndarray, C: np.ndarray) -> tuple[float, float, float]:
         d = P - c
         t = _weiszfeld(d, d.mean(0), iters=500)
         travel = min(travel, float(np.linalg.norm(d - t, axis=1).sum()))
-        bottleneck = min(bottleneck, _min_enclosing_circle(d)[1])
+        bottleneck = min(bottleneck, min_enclosing_circle(d)[2])
     return err, travel, bottleneck
 
 

@@ -10,8 +10,9 @@ import pytest
 
 from runtime.brain import RULES, BrainError, RuleBrain, load_brain, make_rule
 from runtime.controller import Controller
+from runtime.core.plan_frame import min_enclosing_circle
 from runtime.decision import decide_batch
-from runtime.formation import _min_enclosing_circle, assign_slots, lower_bounds
+from runtime.formation import assign_slots, lower_bounds
 from runtime.patterns import make_pattern
 from runtime.rules import FRAME_RULES, FrameRule, frame_plan
 from runtime.safety import OrcaParams
@@ -54,7 +55,8 @@ def test_every_robot_lands_on_its_slot_at_the_same_step(
     weight = FRAME_RULES[name]
     slots = assign_slots(P, C)
     d = P - C[slots]
-    centre, radius = _min_enclosing_circle(d)
+    cx, cy, radius = min_enclosing_circle(d)
+    centre = np.array([cx, cy])
     t = centre + weight * (d.mean(0) - centre)  # the blend of the two frames
     far = float(np.hypot(*(t - d).T).max())
     K = math.ceil(far / W.max_step_m - 1e-9)

@@ -16,12 +16,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from runtime.decision import commands
 from runtime.formation import min_separation, min_swept_separation
 from runtime.safety import (
     FilterResult,
     OrcaParams,
+    make_filter,
     orca_filter,
-    orca_filter_batch,
 )
 from runtime.world_config import DEFAULT_WORLD
 
@@ -64,17 +65,14 @@ def simulate(
     min_frame = float(min_separation(p))
     min_path = math.inf
     arrived: int | None = None
-    mask = ~np.eye(n, dtype=bool)
     for t in range(steps):
-        vel_est = (p - prev) / W.dt_s  # what every robot sees of every other
         d = g - p
         dist = np.linalg.norm(d, axis=1)
         speed = np.minimum(cap, dist / W.dt_s)
         pref = np.where(dist[:, None] > 1e-12, d / np.maximum(dist, 1e-12)[:, None], 0.0)
         pref = pref * speed[:, None]
-        rel = p[None, :, :] - p[:, None, :]
-        nb_vel = np.broadcast_to(vel_est[None, :, :], (n, n, 2))
-        v, _ = orca_filter_batch(pref, vel_est, rel, nb_vel, mask, params=prm)
+        # every robot's own step: the others' velocities are what it sees, (p - prev) / dt
+        v = commands(pref[None], p[None], prev[None], prm, W)[0][0]
         assert np.all(np.linalg.norm(v, axis=1) <= W.v_max_mps + 1e-12)
         if static:
             v[list(static)] = 0.0
@@ -344,22 +342,26 @@ def test_output_norm_bounded_random(
     assert res.change_mps >= 0.0 and math.isfinite(res.change_mps)
 
 
-def test_batch_matches_single_and_respects_mask() -> None:
+def test_teams_are_filtered_apart_and_as_one_robot_each() -> None:
+    """A batch of teams gives each robot what it gets in its team alone, robot by robot."""
     rng = np.random.default_rng(7)
-    m, k = 6, 5
-    pref = rng.uniform(-1, 1, (m, 2))
-    own = rng.uniform(-1, 1, (m, 2))
-    rel = rng.uniform(-1, 1, (m, k, 2))
-    vel = rng.uniform(-1, 1, (m, k, 2))
-    mask = rng.random((m, k)) < 0.6
-    safe, changed = orca_filter_batch(pref, own, rel, vel, mask)
-    assert safe.shape == (m, 2) and changed.shape == (m,) and changed.dtype == bool
-    for i in range(m):
-        one = orca_filter(pref[i], own[i], rel[i][mask[i]], vel[i][mask[i]])
-        assert tuple(safe[i]) == pytest.approx(one.velocity, abs=0)
-        assert changed[i] == one.changed
-    # A masked-out neighbour on a collision course changes nothing.
-    s2, c2 = orca_filter_batch(
-        [[1.0, 0.0]], [[1.0, 0.0]], [[[0.3, 0.0]]], [[[-1.0, 0.0]]], [[False]]
-    )
-    assert not c2[0] and tuple(s2[0]) == (1.0, 0.0)
+    E, n = 4, 7
+    pos = rng.uniform(0, 1.5, (E, n, 2))
+    vel = rng.uniform(-1, 1, (E, n, 2))
+    pref = rng.uniform(-1.5, 1.5, (E, n, 2))
+    horizon = np.array([0.75, 0.3, 0.75, 0.1])
+    out = np.empty((E, n, 2))
+    changed = np.zeros((E, n), dtype=np.uint8)
+    f = make_filter(OrcaParams(), W)
+    f.teams(pos, vel, pref, horizon, out, changed)
+    for e in range(E):
+        for i in range(n):
+            vx, vy, ch, _ = make_filter(OrcaParams(), W).robot(
+                0, i, pos[e : e + 1].copy(), vel[e : e + 1].copy(), *pref[e, i], horizon[e])
+            assert (vx, vy) == tuple(out[e, i]) and ch == bool(changed[e, i])
+    # no filter: the speed clamp only, never "changed"
+    make_filter(None, W).teams(pos, vel, pref, horizon, out, changed)
+    assert not changed.any()
+    assert np.all(np.hypot(out[..., 0], out[..., 1]) <= W.v_max_mps)
+    assert np.allclose(out[np.hypot(pref[..., 0], pref[..., 1]) <= 1.0],
+                       pref[np.hypot(pref[..., 0], pref[..., 1]) <= 1.0])

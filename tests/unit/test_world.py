@@ -174,14 +174,11 @@ def test_crowd_driven_to_centre_never_interpenetrates() -> None:
     assert saw > 100  # the crowd did push
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_jam_that_does_not_clear_holds_robots_still(
-    monkeypatch: pytest.MonkeyPatch, compiled: bool
-) -> None:
+def test_jam_that_does_not_clear_holds_robots_still(monkeypatch: pytest.MonkeyPatch) -> None:
     import trainer.contacts as world_module
 
     monkeypatch.setattr(world_module, "CONTACT_SWEEPS", 1)  # too few sweeps for a chain
-    w = make(n_envs=1, n_robots=4, build_obs=False, compiled=compiled)
+    w = make(n_envs=1, n_robots=4, build_obs=False)
     start = np.array([[[0.0, 0.0], [TWO_R + 0.01, 0.0], [2 * TWO_R + 0.02, 0.0], [5.0, 5.0]]])
     w.reset_to(start)
     a = np.zeros((1, 4, 2))
@@ -376,9 +373,8 @@ def test_formed_bonus_once_on_formation() -> None:
 # ------------------------------------------------------------- observation
 
 
-@pytest.mark.parametrize("compiled", [True, False])
-def test_general_observation_matches_runtime_builder(compiled: bool) -> None:
-    w = make(n_envs=3, n_robots=7, compiled=compiled)
+def test_general_observation_matches_runtime_builder() -> None:
+    w = make(n_envs=3, n_robots=7)
     assert w.obs_dim == GENERAL.dim
     rng = np.random.default_rng(0)
     for _ in range(3):

@@ -1,0 +1,455 @@
+# cython: boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""The ORCA safety filter, with its neighbour choice, and the speed clamp: written once.
+
+ORCA (van den Berg et al., "Reciprocal n-body collision avoidance", 2011; RVO2's
+``Agent::computeNewVelocity``, agent-agent part): each of the robot's nearest
+neighbours in range gives one half-plane of velocities that keeps the pair apart for
+the time horizon, each robot taking half the responsibility; a 2-d linear program
+picks the velocity closest to the preferred one within v_max, and when the
+half-planes leave no room, the one that violates them least. A new constraint (a
+margin for an uncertain view, a wheel's limits, an obstacle) is a new loop in
+:meth:`OrcaFilter.robot`, here and nowhere else.
+
+:class:`OrcaFilter` holds the filter's settings and its scratch; :meth:`OrcaFilter.robot`
+filters one robot's velocity (the robot's own step), :meth:`OrcaFilter.teams` every
+robot of E teams (``eval``, the training world), calling the same code. The tuning
+and its reasons live in :mod:`runtime.safety` (``OrcaParams``).
+
+Plain Python in Cython's pure-Python mode (see :mod:`runtime.core`). Units: m, s, m/s.
+"""
+
+import cython
+import numpy as np
+
+if cython.compiled:
+    from cython.cimports.libc.math import cos, hypot, isfinite, sin, sqrt
+    from cython.cimports.runtime.core.neighbours import nearest
+else:
+    from math import cos, hypot, isfinite, sin, sqrt
+
+    from runtime.core.neighbours import nearest
+
+__all__ = ["CHANGE_TOL_MPS", "MAX_NEIGHBOURS", "OrcaFilter", "clamp_speed"]
+
+RVO_EPS = cython.declare(cython.double, 1e-5)
+"""RVO2's tolerance for parallel lines in the linear programs."""
+CHANGE_TOL_MPS = 1e-9
+"""A filtered velocity this close to the preferred one counts as unchanged (m/s)."""
+_CHANGE_TOL = cython.declare(cython.double, 1e-9)  # the same, as a C constant
+MAX_NEIGHBOURS = 64
+"""The most neighbours the filter considers (``OrcaParams.max_neighbours``)."""
+
+
+@cython.cfunc
+@cython.exceptval(check=False)
+def _clamp(vx: cython.double, vy: cython.double,
+           v_max: cython.double) -> tuple[cython.double, cython.double]:
+    a: cython.double = hypot(vx, vy)
+    b: cython.double = sqrt(vx * vx + vy * vy)
+    sp: cython.double = a if a > b else b
+    s: cython.double
+    if sp > v_max:
+        s = v_max / sp
+        vx = vx * s
+        vy = vy * s
+        while True:  # exactly within v_max, both ways of taking the norm
+            a = hypot(vx, vy)
+            b = sqrt(vx * vx + vy * vy)
+            if not (a if a > b else b) > v_max:
+                break
+            vx = vx * (1.0 - 1e-15)
+            vy = vy * (1.0 - 1e-15)
+    return vx, vy
+
+
+@cython.ccall
+def clamp_speed(vx: cython.double, vy: cython.double,
+                v_max: cython.double) -> tuple[cython.double, cython.double]:
+    """(vx, vy) scaled down to norm <= v_max (exactly, both ways of taking the norm), m/s."""
+    return _clamp(vx, vy, v_max)
+
+
+# --------------------------------------------- linear programs (RVO2's 1, 2 and 3)
+# A line is a row [px, py, dx, dy] of a (m, 4) array: a point on it and its unit
+# direction; the allowed half-plane lies to the left of the direction.
+
+
+@cython.cfunc
+@cython.exceptval(check=False)
+def _lp1(lines: cython.double[:, ::1], no: cython.Py_ssize_t, radius: cython.double,
+         ox: cython.double, oy: cython.double, dir_opt: cython.bint,
+         out: cython.double[::1]) -> cython.bint:
+    """The best point on line ``no`` within the circle and the lines before it, into
+    ``out[0:2]``; False when there is none."""
+    px: cython.double = lines[no, 0]
+    py: cython.double = lines[no, 1]
+    dx: cython.double = lines[no, 2]
+    dy: cython.double = lines[no, 3]
+    dot: cython.double = px * dx + py * dy
+    disc: cython.double = dot * dot + radius * radius - (px * px + py * py)
+    sq: cython.double
+    tl: cython.double
+    tr: cython.double
+    t: cython.double
+    den: cython.double
+    num: cython.double
+    i: cython.Py_ssize_t
+    if disc < 0.0:
+        return False  # the max-speed circle misses this line entirely
+    sq = sqrt(disc)
+    tl = -dot - sq
+    tr = -dot + sq
+    for i in range(no):
+        den = dx * lines[i, 3] - dy * lines[i, 2]
+        num = lines[i, 2] * (py - lines[i, 1]) - lines[i, 3] * (px - lines[i, 0])
+        if abs(den) <= RVO_EPS:
+            if num < 0.0:
+                return False  # parallel and on the wrong side
+            continue
+        t = num / den
+        if den >= 0.0:
+            if t < tr:
+                tr = t
+        elif t > tl:
+            tl = t
+        if tl > tr:
+            return False
+    if dir_opt:
+        t = tr if ox * dx + oy * dy > 0.0 else tl
+    else:
+        t = dx * (ox - px) + dy * (oy - py)
+        if t < tl:
+            t = tl
+        elif t > tr:
+            t = tr
+    out[0] = px + t * dx
+    out[1] = py + t * dy
+    return True
+
+
+@cython.cfunc
+@cython.exceptval(check=False)
+def _lp2(lines: cython.double[:, ::1], m: cython.Py_ssize_t, radius: cython.double,
+         ox: cython.double, oy: cython.double, dir_opt: cython.bint,
+         out: cython.double[::1]) -> cython.Py_ssize_t:
+    """The point closest to the optimum (ox, oy) that satisfies lines[:m], into
+    ``out[0:2]``; returns the line that failed (m on success)."""
+    n2: cython.double
+    s: cython.double
+    i: cython.Py_ssize_t
+    if dir_opt:
+        out[0] = ox * radius
+        out[1] = oy * radius
+    else:
+        n2 = ox * ox + oy * oy
+        if n2 > radius * radius:
+            s = radius / sqrt(n2)
+            out[0] = ox * s
+            out[1] = oy * s
+        else:
+            out[0] = ox
+            out[1] = oy
+    for i in range(m):
+        if lines[i, 2] * (lines[i, 1] - out[1]) - lines[i, 3] * (lines[i, 0] - out[0]) > 0.0:
+            if not _lp1(lines, i, radius, ox, oy, dir_opt, out):
+                return i
+    return m
+
+
+@cython.cfunc
+@cython.exceptval(check=False)
+def _lp3(lines: cython.double[:, ::1], m: cython.Py_ssize_t, begin: cython.Py_ssize_t,
+         radius: cython.double, proj: cython.double[:, ::1], out: cython.double[::1],
+         found: cython.double[::1]) -> cython.void:
+    """The infeasible case: the velocity of least largest violation, from ``out[0:2]``
+    (lines[:begin] hold); ``proj`` (m, 4) and ``found`` (2,) are scratch."""
+    distance: cython.double = 0.0
+    i: cython.Py_ssize_t
+    j: cython.Py_ssize_t
+    k: cython.Py_ssize_t
+    px: cython.double
+    py: cython.double
+    dx: cython.double
+    dy: cython.double
+    det: cython.double
+    t: cython.double
+    ux: cython.double
+    uy: cython.double
+    un: cython.double
+    for i in range(begin, m):
+        px = lines[i, 0]
+        py = lines[i, 1]
+        dx = lines[i, 2]
+        dy = lines[i, 3]
+        if dx * (py - out[1]) - dy * (px - out[0]) > distance:
+            k = 0
+            for j in range(i):
+                det = dx * lines[j, 3] - dy * lines[j, 2]
+                if abs(det) <= RVO_EPS:
+                    if dx * lines[j, 2] + dy * lines[j, 3] > 0.0:
+                        continue  # the same direction: line j is implied
+                    proj[k, 0] = 0.5 * (px + lines[j, 0])
+                    proj[k, 1] = 0.5 * (py + lines[j, 1])
+                else:
+                    t = (lines[j, 2] * (py - lines[j, 1]) - lines[j, 3] * (px - lines[j, 0])) / det
+                    proj[k, 0] = px + t * dx
+                    proj[k, 1] = py + t * dy
+                ux = lines[j, 2] - dx
+                uy = lines[j, 3] - dy
+                un = sqrt(ux * ux + uy * uy)
+                proj[k, 2] = ux / un
+                proj[k, 3] = uy / un
+                k += 1
+            if _lp2(proj, k, radius, -dy, dx, True, found) >= k:
+                out[0] = found[0]
+                out[1] = found[1]
+            # else: keep the previous result (a numerical failure, as RVO2 does)
+            distance = dx * (py - out[1]) - dy * (px - out[0])
+
+
+# ------------------------------------------------------------------ the filter
+
+
+@cython.cclass
+class OrcaFilter:
+    """The ORCA filter's settings and its scratch: one per robot (or per batch), not shared
+    between threads."""
+
+    max_neighbours: cython.Py_ssize_t
+    range_sq: cython.double
+    combined: cython.double
+    dt: cython.double
+    keep_right: cython.double
+    v_max: cython.double
+    _ids: cython.Py_ssize_t[:, :, ::1]
+    _d2: cython.double[:, :, ::1]
+    _count: cython.Py_ssize_t[:, ::1]
+    _lines: cython.double[:, ::1]
+    _proj: cython.double[:, ::1]
+    _out: cython.double[::1]
+    _found: cython.double[::1]
+
+    def __init__(self, max_neighbours: int, neighbour_dist_m: float, combined_radius_m: float,
+                 dt_s: float, keep_right_rad: float, v_max_mps: float) -> None:
+        """``max_neighbours`` at most :data:`MAX_NEIGHBOURS` nearest, closer than
+        ``neighbour_dist_m`` (m); ``combined_radius_m`` the pair's radius with its margin
+        (m); ``dt_s`` the step (s); ``keep_right_rad`` the clockwise turn of a blocked
+        preferred velocity (rad, 0: none); ``v_max_mps`` the speed limit (m/s)."""
+        if not 0 <= max_neighbours <= MAX_NEIGHBOURS:
+            raise ValueError(f"ORCA considers 0 to {MAX_NEIGHBOURS} neighbours, "
+                             f"not {max_neighbours}")
+        self.max_neighbours = max_neighbours
+        self.range_sq = neighbour_dist_m * neighbour_dist_m
+        self.combined = combined_radius_m
+        self.dt = dt_s
+        self.keep_right = keep_right_rad
+        self.v_max = v_max_mps
+        k = max(max_neighbours, 1)
+        self._ids = None  # the neighbour tables, made for the first batch's shape
+        self._tables(1, 1)
+        self._lines = np.zeros((k, 4))
+        self._proj = np.zeros((k, 4))
+        self._out = np.zeros(2)
+        self._found = np.zeros(2)
+
+    def _tables(self, E: int, n: int) -> None:
+        """The neighbour tables (E, n, max_neighbours), kept while E and n stay."""
+        if self._ids is None or self._ids.shape[0] != E or self._ids.shape[1] != n:
+            k = max(self.max_neighbours, 1)
+            self._ids = np.zeros((E, n, k), dtype=np.intp)
+            self._d2 = np.zeros((E, n, k))
+            self._count = np.zeros((E, n), dtype=np.intp)
+
+    @cython.ccall
+    def robot(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
+              pos: cython.const[cython.double][:, :, ::1],
+              vel: cython.const[cython.double][:, :, ::1],
+              pref_x: cython.double, pref_y: cython.double, horizon_s: cython.double
+              ) -> tuple[cython.double, cython.double, cython.bint, cython.double]:
+        """Robot i of team e: its safe velocity (vx, vy, changed, change_mps).
+
+        ``pos`` (E, n, 2) the teams' positions as robot i sees them (m; a robot passes its
+        one team as E = 1), ``vel`` (E, n, 2) their
+        velocities (m/s; a non-finite one counts as zero); (pref_x, pref_y) the preferred
+        velocity (m/s, finite), first clamped to v_max; ``horizon_s`` ORCA's time horizon
+        (s). The result has norm <= v_max; ``changed`` says it differs from the clamped
+        preferred velocity by more than :data:`CHANGE_TOL_MPS`, ``change_mps`` by how much.
+        """
+        if not (0 <= e < pos.shape[0] and 0 <= i < pos.shape[1]) \
+                or vel.shape[0] != pos.shape[0] or vel.shape[1] != pos.shape[1]:
+            raise ValueError("ORCA: robot index or velocities do not fit the positions")
+        nearest(pos, e, e + 1, i, i + 1, self.max_neighbours, self.range_sq, self._ids,
+                self._d2, self._count)
+        return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s)
+
+    @cython.cfunc
+    def _safe(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t, a: cython.Py_ssize_t,
+              b: cython.Py_ssize_t, pos: cython.const[cython.double][:, :, ::1],
+              vel: cython.const[cython.double][:, :, ::1],
+              pref_x: cython.double, pref_y: cython.double, horizon_s: cython.double
+              ) -> tuple[cython.double, cython.double, cython.bint, cython.double]:
+        """Robot i of team e, its neighbours at [a, b] of the tables: :meth:`robot`."""
+        pref_x, pref_y = _clamp(pref_x, pref_y, self.v_max)
+        m: cython.Py_ssize_t = self._count[a, b]
+        lines = self._lines
+        out = self._out
+        c: cython.Py_ssize_t
+        j: cython.Py_ssize_t
+        ox: cython.double = vel[e, i, 0]
+        oy: cython.double = vel[e, i, 1]
+        combined: cython.double = self.combined
+        combined_sq: cython.double = combined * combined
+        inv_tau: cython.double = 1.0 / horizon_s
+        inv_dt: cython.double = 1.0 / self.dt
+        v_max: cython.double = self.v_max
+        dist_sq: cython.double
+        rpx: cython.double
+        rpy: cython.double
+        nvx: cython.double
+        nvy: cython.double
+        rvx: cython.double
+        rvy: cython.double
+        wx: cython.double
+        wy: cython.double
+        w_len: cython.double
+        w_len_sq: cython.double
+        dot: cython.double
+        leg: cython.double
+        d: cython.double
+        dx: cython.double
+        dy: cython.double
+        ux: cython.double
+        uy: cython.double
+        s: cython.double
+        rx: cython.double
+        ry: cython.double
+        cx: cython.double
+        cy: cython.double
+        optx: cython.double = pref_x
+        opty: cython.double = pref_y
+        if m == 0:
+            rx = pref_x
+            ry = pref_y
+        else:
+            if not (isfinite(ox) and isfinite(oy)):
+                ox = oy = 0.0
+            for c in range(m):
+                j = self._ids[a, b, c]
+                dist_sq = self._d2[a, b, c]
+                rpx = pos[e, j, 0] - pos[e, i, 0]
+                rpy = pos[e, j, 1] - pos[e, i, 1]
+                nvx = vel[e, j, 0]
+                nvy = vel[e, j, 1]
+                if not (isfinite(nvx) and isfinite(nvy)):
+                    nvx = nvy = 0.0
+                rvx = ox - nvx  # own velocity relative to the neighbour
+                rvy = oy - nvy
+                if dist_sq > combined_sq:
+                    # no collision yet: the velocity obstacle, cut off at the horizon
+                    wx = rvx - inv_tau * rpx
+                    wy = rvy - inv_tau * rpy
+                    w_len_sq = wx * wx + wy * wy
+                    dot = wx * rpx + wy * rpy
+                    if dot < 0.0 and dot * dot > combined_sq * w_len_sq:
+                        w_len = sqrt(w_len_sq)  # project on the cut-off circle
+                        dx = wy / w_len
+                        dy = -(wx / w_len)
+                        s = combined * inv_tau - w_len
+                        ux = s * (wx / w_len)
+                        uy = s * (wy / w_len)
+                    else:
+                        leg = sqrt(dist_sq - combined_sq)  # project on a leg of the cone
+                        if rpx * wy - rpy * wx > 0.0:  # left leg
+                            dx = (rpx * leg - rpy * combined) / dist_sq
+                            dy = (rpx * combined + rpy * leg) / dist_sq
+                        else:  # right leg
+                            dx = -(rpx * leg + rpy * combined) / dist_sq
+                            dy = -(-rpx * combined + rpy * leg) / dist_sq
+                        dot = rvx * dx + rvy * dy
+                        ux = dot * dx - rvx
+                        uy = dot * dy - rvy
+                else:
+                    # already closer than the inflated radius: apart again after one step
+                    wx = rvx - inv_dt * rpx
+                    wy = rvy - inv_dt * rpy
+                    w_len = sqrt(wx * wx + wy * wy)
+                    if w_len > 1e-12:
+                        cx = wx / w_len
+                        cy = wy / w_len
+                    else:  # exactly at the separation target: straight away from it
+                        d = sqrt(dist_sq)
+                        if d > 1e-12:
+                            cx = -rpx / d
+                            cy = -rpy / d
+                        else:  # coincident: an arbitrary axis
+                            cx = 0.0
+                            cy = -1.0
+                    dx = cy
+                    dy = -cx
+                    s = combined * inv_dt - w_len
+                    ux = s * cx
+                    uy = s * cy
+                lines[c, 0] = ox + 0.5 * ux  # half the responsibility each
+                lines[c, 1] = oy + 0.5 * uy
+                lines[c, 2] = dx
+                lines[c, 3] = dy
+            # keep right: a (speed-limited) preferred velocity that breaks a constraint
+            # turns slightly clockwise, so that two robots head-on pass each other
+            cx = pref_x
+            cy = pref_y
+            s = pref_x * pref_x + pref_y * pref_y
+            if s > v_max * v_max:
+                s = v_max / sqrt(s)
+                cx = cx * s
+                cy = cy * s
+            if self.keep_right != 0.0:
+                for c in range(m):
+                    if lines[c, 2] * (lines[c, 1] - cy) - lines[c, 3] * (lines[c, 0] - cx) > 0.0:
+                        cs: cython.double = cos(self.keep_right)
+                        s = sin(self.keep_right)
+                        optx = cs * pref_x + s * pref_y
+                        opty = -s * pref_x + cs * pref_y
+                        break
+            c = _lp2(lines, m, v_max, optx, opty, False, out)
+            if c < m:
+                _lp3(lines, m, c, v_max, self._proj, out, self._found)
+            rx, ry = _clamp(out[0], out[1], v_max)  # the LP's rounding: exactly within v_max
+        s = hypot(rx - pref_x, ry - pref_y)
+        return rx, ry, s > _CHANGE_TOL, s
+
+    @cython.ccall
+    def teams(self, pos: cython.const[cython.double][:, :, ::1],
+              vel: cython.const[cython.double][:, :, ::1],
+              pref: cython.const[cython.double][:, :, ::1],
+              horizon_s: cython.const[cython.double][::1],
+              out: cython.double[:, :, ::1], changed: cython.uchar[:, ::1]) -> cython.void:
+        """Every robot of E teams: ``pos``, ``vel``, ``pref`` (E, n, 2) as in :meth:`robot`,
+        ``horizon_s`` (E,) each team's horizon (s); writes ``out`` (E, n, 2) m/s and
+        ``changed`` (E, n). A robot whose preferred velocity is not finite holds still
+        (zero, unchanged)."""
+        E: cython.Py_ssize_t = pos.shape[0]
+        n: cython.Py_ssize_t = pos.shape[1]
+        e: cython.Py_ssize_t
+        i: cython.Py_ssize_t
+        px: cython.double
+        py: cython.double
+        ch: cython.bint
+        if vel.shape[0] != E or pref.shape[0] != E or out.shape[0] != E \
+                or changed.shape[0] != E or horizon_s.shape[0] != E or vel.shape[1] != n \
+                or pref.shape[1] != n or out.shape[1] != n or changed.shape[1] != n:
+            raise ValueError("ORCA: the arrays' shapes do not fit")
+        self._tables(E, n)
+        nearest(pos, 0, E, 0, n, self.max_neighbours, self.range_sq, self._ids, self._d2,
+                self._count)
+        for e in range(E):
+            for i in range(pos.shape[1]):
+                px = pref[e, i, 0]
+                py = pref[e, i, 1]
+                if not (isfinite(px) and isfinite(py)):
+                    out[e, i, 0] = 0.0
+                    out[e, i, 1] = 0.0
+                    changed[e, i] = 0
+                    continue
+                out[e, i, 0], out[e, i, 1], ch, _ = self._safe(e, i, e, i, pos, vel, px, py,
+                                                               horizon_s[e])
+                changed[e, i] = ch
