@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from runtime.brain import Brain
-from runtime.core.assignment import assign_team, team_cost
+from runtime.core.assignment import TeamAssignment
 from runtime.core.general_row import GeneralRows
 from runtime.decision import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.observation import observe
@@ -57,13 +57,8 @@ class Controller:
         self._reach = world.v_max_mps * world.dt_s
         self._rows = GeneralRows(brain.spec.k_neighbours, self._reach)
         self._row: NDArray[Any] = np.zeros((1, 1, self._rows.dim))  # a brain's own input
-        self._slot = np.zeros((1, 1, 2))  # the robot's slot (m)
-        self._pace = np.zeros(1)  # the plan's K v_max dt (m), 0 without a plan
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
-        self._ccx: Array = np.zeros(0)
-        self._ccy: Array = np.zeros(0)
-        self._cost: Array = np.zeros((0, 0))  # (n, n) m^2, the assignment's cost
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -85,7 +80,8 @@ class Controller:
         self._frames: list[Array] = []  # positions at t, t-1, t-2 (own copies)
         self._last_step: int | None = None
         self._prev_slots: IntArray | None = None
-        self._potentials: Array = np.zeros(0)  # the solver's slot potentials (m^2)
+        self._assignment: TeamAssignment | None = None  # its slots and potentials, kept
+        self._vel: Array = np.zeros((1, 0, 2))  # the team's velocity estimates (m/s)
         self._plan = PlanFrame()
 
     @property
@@ -97,9 +93,9 @@ class Controller:
         if c.ndim != 2 or c.shape[-1] != 2:
             raise ValueError(f"pattern must have shape (n, 2), got {c.shape}")
         self._cc = c - c.mean(axis=0, keepdims=True)
-        self._ccx, self._ccy = self._cc[:, 0].copy(), self._cc[:, 1].copy()
         self._pattern_obj = pattern
         self._prev_slots = None
+        self._assignment = None
 
     def _use_pattern(self, pattern: Array) -> None:
         """Cache the centred pattern; equal values in a new array object keep it."""
@@ -119,8 +115,8 @@ class Controller:
             self._n = n
             self._frames = [pos, pos, pos]
             self._prev_slots = None
-            self._cost = np.empty((n, n))
-            self._potentials = np.zeros(n)
+            self._assignment = None
+            self._vel = np.zeros((1, n, 2))
         elif step is not None and step == self._last_step:
             self._frames[0] = pos  # the same step again (realtime): refresh, do not shift
         else:
@@ -133,32 +129,25 @@ class Controller:
     def _assign(self, pos: Array) -> tuple[IntArray, float, float]:
         """Step 1: the shared assignment with hysteresis, warm from the last step's
         potentials; also the team's centroid (cx, cy)."""
-        cx, cy = team_cost(pos, self._ccx, self._ccy, self._cost)
-        prev = self._prev_slots
+        if self._assignment is None:  # a new team or pattern: no warm start to keep
+            self._assignment = TeamAssignment(self._cc)
         slots: IntArray = np.empty(len(pos), dtype=np.int64)
-        if prev is None:  # a new team or pattern: no warm start to keep
-            self._potentials[:] = 0.0
-        if assign_team(self._cost, slots if prev is None else prev, prev is not None,
-                       self._potentials, slots) < 0:
-            self._potentials[:] = 0.0
+        cx, cy = self._assignment.step(pos, slots)
         self._prev_slots = slots
         return slots, cx, cy
 
-    def _target(self, i: int, pos: Array, slots: IntArray, cx: float, cy: float) -> float | None:
-        """Step 2: robot i's slot in the world into ``self._slot``, and the plan's steps
-        left (None for a brain without a plan)."""
+    def _target(self, i: int, pos: Array, slots: IntArray, cx: float, cy: float
+                ) -> tuple[float, float, float | None]:
+        """Step 2: robot i's slot in the world (sx, sy) and the plan's steps left (None for a
+        brain without a plan)."""
         spec = self._brain.spec
         if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
             pts = self._cc[slots]
             tx, ty, k = self._plan.solve_floats(pos, pts, spec.travel_weight, self.world)
             qx, qy = pts[i].tolist()
-            self._slot[0, 0, 0], self._slot[0, 0, 1] = qx + tx, qy + ty
-            self._pace[0] = k * self._reach
-            return k
+            return qx + tx, qy + ty, k
         qx, qy = self._cc[int(slots[i])].tolist()
-        self._slot[0, 0, 0], self._slot[0, 0, 1] = qx + cx, qy + cy  # == slot_positions[i]
-        self._pace[0] = 0.0
-        return None
+        return qx + cx, qy + cy, None  # == slot_positions(...)[i]
 
     def _act(self, i: int, P: Array, V: Array, slots: IntArray, cx: float, cy: float
              ) -> tuple[float, float, float | None]:
@@ -175,14 +164,15 @@ class Controller:
             obs = observe(spec, self._frames, None, (i,), self.world)
             vx, vy = np.asarray(brain.act(obs), dtype=np.float64)[0].tolist()
             return vx, vy, None
-        steps_left = self._target(i, P[0], slots, cx, cy)
+        sx, sy, steps_left = self._target(i, P[0], slots, cx, cy)
+        pace = 0.0 if steps_left is None else steps_left * self._reach
         direct: NDArray[np.float32] | None = getattr(brain, "input_row", None)
-        row = self._row if direct is None else direct.reshape(1, 1, -1)
-        self._rows.robot(0, i, P, V, self._slot, self._pace, row)
-        if direct is not None:  # onnxruntime reads the row where it was written
+        if direct is not None:  # onnxruntime reads the row where it is written
+            self._rows.robot(0, i, P, V, sx, sy, pace, direct.reshape(1, 1, -1))
             vx, vy = brain.act_input()  # type: ignore[attr-defined]
         else:
-            vx, vy = np.asarray(brain.act(row[0]), dtype=np.float64)[0].tolist()
+            self._rows.robot_f64(0, i, P, V, sx, sy, pace, self._row)
+            vx, vy = np.asarray(brain.act(self._row[0]), dtype=np.float64)[0].tolist()
         return vx, vy, steps_left
 
     def decide(
@@ -215,7 +205,9 @@ class Controller:
         slots, cx, cy = self._assign(pos)  # 1. assign
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one
-        V = ((pos - self._frames[1]) / self.world.dt_s)[None]
+        V = self._vel
+        np.subtract(pos, self._frames[1], out=V[0])
+        V /= self.world.dt_s
         try:  # 2-4. target, observe, act
             bvx, bvy, steps_left = self._act(i, P, V, slots, cx, cy)
         except Exception:  # a brain must never take the loop down

@@ -9,7 +9,8 @@ centred robot i to centred slot j (:func:`team_cost`), a minimum-cost assignment
 hysteresis rule (:func:`runtime.formation.keeps_previous`): the previous assignment
 is kept unless the new one's summed cost is lower by more than
 ``HYSTERESIS_REL * old + HYSTERESIS_ABS_M2``. The robot calls :func:`assign_team`
-for its team, the training world :func:`assign_teams` for a batch of teams, and
+for its team (through :class:`TeamAssignment`, which keeps its state), the training
+world :func:`assign_teams` for a batch of teams, and
 :mod:`runtime.formation` :func:`assign_costs` for costs it built itself; all three
 run the same per-team code.
 
@@ -66,6 +67,7 @@ import numpy as np
 __all__ = [
     "HYSTERESIS_ABS_M2",
     "HYSTERESIS_REL",
+    "TeamAssignment",
     "assign_costs",
     "assign_team",
     "assign_teams",
@@ -435,6 +437,57 @@ def _teams(
             slots[e, i] = tslots[i]
             potentials[e, i] = tv[i]
     return solved
+
+
+@cython.cclass
+class TeamAssignment:
+    """One robot's assignment from step to step: the centred pattern's columns, the cost,
+    the last slots and their potentials (the solver's warm start), and the scratch.
+
+    The robot's path of :func:`team_cost` then :func:`assign_team` with nothing but the
+    positions passed in a step. Not shared between threads.
+    """
+
+    _ccx: cython.double[::1]
+    _ccy: cython.double[::1]
+    _cost: cython.double[:, ::1]
+    _v: cython.double[::1]
+    _prev: cython.longlong[::1]
+    _fw: cython.double[:, ::1]
+    _iw: cython.longlong[:, ::1]
+    _has_prev: cython.bint
+
+    def __init__(self, pattern_centred: np.ndarray) -> None:
+        """``pattern_centred`` (n, 2): the team's pattern minus its centroid (m)."""
+        cc = np.asarray(pattern_centred, dtype=np.float64)
+        if cc.ndim != 2 or cc.shape[1] != 2:
+            raise ValueError(f"pattern must have shape (n, 2), got {cc.shape}")
+        n = cc.shape[0]
+        self._ccx = np.ascontiguousarray(cc[:, 0])
+        self._ccy = np.ascontiguousarray(cc[:, 1])
+        self._cost = np.empty((n, n))
+        self._v = np.zeros(n)
+        self._prev = np.zeros(n, dtype=np.int64)
+        self._fw = np.empty((2, n))
+        self._iw = np.empty((6, n), dtype=np.int64)
+        self._has_prev = False
+
+    def step(self, pos: cython.double[:, ::1], slots: cython.longlong[::1]
+             ) -> tuple[cython.double, cython.double]:
+        """This step's slots into ``slots`` (n,), with the hysteresis rule against the last
+        step's; returns the team's centroid (cx, cy) (m). ``pos`` (n, 2) positions (m)."""
+        n: cython.Py_ssize_t = self._ccx.shape[0]
+        i: cython.Py_ssize_t
+        if pos.shape[0] != n or pos.shape[1] != 2 or slots.shape[0] != n:
+            raise ValueError("team assignment: the team and the pattern differ in size")
+        cx: cython.double
+        cy: cython.double
+        cx, cy = _centred_cost(pos, self._ccx, self._ccy, self._cost)
+        _assign_one(self._cost, self._prev, self._has_prev, self._v, slots, self._fw, self._iw)
+        for i in range(n):
+            self._prev[i] = slots[i]
+        self._has_prev = True
+        return cx, cy
 
 
 def team_cost(

@@ -49,6 +49,8 @@ class GeneralRows:
     _ids: cython.Py_ssize_t[:, :, ::1]
     _d2: cython.double[:, :, ::1]
     _count: cython.Py_ssize_t[:, ::1]
+    _slot1: cython.double[:, :, ::1]
+    _pace1: cython.double[::1]
 
     def __init__(self, k: int, reach_m: float) -> None:
         if k < 0:
@@ -57,6 +59,8 @@ class GeneralRows:
         self.reach = reach_m
         self._ids = None  # the neighbour tables, made for the first batch's shape
         self._scratch(1, 1)
+        self._slot1 = np.zeros((1, 1, 2))  # a robot's slot and pace, as a batch of one
+        self._pace1 = np.zeros(1)
 
     def _scratch(self, E: int, n: int) -> None:
         if self._ids is None or self._ids.shape[0] != E or self._ids.shape[1] != n:
@@ -130,25 +134,45 @@ class GeneralRows:
                 for o in range(_FIXED + _PER * count[a, b], _FIXED + _PER * k):
                     out[a, b, o] = 0.0
 
-    def robot(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
-              pos: cython.const[cython.double][:, :, ::1],
-              vel: cython.const[cython.double][:, :, ::1],
-              slot: cython.const[cython.double][:, :, ::1], pace: cython.const[cython.double][::1],
-              out: cython.floating[:, :, ::1]) -> None:
-        """Robot i of team e: its row into ``out`` (1, 1, 6 + 5k), a batch of one row as a
-        brain reads it.
-
-        ``pos``, ``vel`` (E, n, 2): the teams' positions (m) and velocity estimates (m/s),
-        a robot passing its one team as E = 1; ``slot`` (1, 1, 2): robot i's slot (m);
-        ``pace`` (1,): K v_max dt for the plan spec (m), 0 for the general one.
-        """
+    @cython.cfunc
+    def _robot(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
+               pos: cython.const[cython.double][:, :, ::1],
+               vel: cython.const[cython.double][:, :, ::1], sx: cython.double,
+               sy: cython.double, pace: cython.double, out: cython.floating[:, :, ::1]
+               ) -> cython.void:
         if not (0 <= e < pos.shape[0] and 0 <= i < pos.shape[1]) \
                 or vel.shape[0] != pos.shape[0] or vel.shape[1] != pos.shape[1] \
-                or slot.shape[0] < 1 or slot.shape[1] < 1 or pace.shape[0] < 1 \
                 or out.shape[0] < 1 or out.shape[1] < 1 \
-                or out.shape[2] != FIXED + PER_NEIGHBOUR * self.k:
+                or out.shape[2] != _FIXED + _PER * self.k:
             raise ValueError("general row: robot index, velocities or row width do not fit")
-        self._rows(pos, vel, slot, pace, e, e + 1, i, i + 1, out)  # the tables hold [0, 0]
+        self._slot1[0, 0, 0] = sx
+        self._slot1[0, 0, 1] = sy
+        self._pace1[0] = pace
+        self._rows(pos, vel, self._slot1, self._pace1, e, e + 1, i, i + 1, out)
+
+    @cython.ccall
+    def robot(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
+              pos: cython.const[cython.double][:, :, ::1],
+              vel: cython.const[cython.double][:, :, ::1], sx: cython.double,
+              sy: cython.double, pace: cython.double, out: cython.float[:, :, ::1]
+              ) -> cython.void:
+        """Robot i of team e: its row into ``out`` (1, 1, 6 + 5k) float32, a batch of one
+        row as a brain reads it (:meth:`robot_f64` for float64).
+
+        ``pos``, ``vel`` (E, n, 2): the teams' positions (m) and velocity estimates (m/s),
+        a robot passing its one team as E = 1; (sx, sy): robot i's slot (m); ``pace``:
+        K v_max dt for the plan spec (m), 0 for the general one.
+        """
+        self._robot(e, i, pos, vel, sx, sy, pace, out)
+
+    @cython.ccall
+    def robot_f64(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
+                  pos: cython.const[cython.double][:, :, ::1],
+                  vel: cython.const[cython.double][:, :, ::1], sx: cython.double,
+                  sy: cython.double, pace: cython.double, out: cython.double[:, :, ::1]
+                  ) -> cython.void:
+        """:meth:`robot` into a float64 row."""
+        self._robot(e, i, pos, vel, sx, sy, pace, out)
 
     def teams(self, pos: cython.const[cython.double][:, :, ::1],
               vel: cython.const[cython.double][:, :, ::1],

@@ -369,3 +369,29 @@ def test_python_source_gives_the_compiled_numbers() -> None:
         cxy = mod.team_cost(pos[0], pat[0, :, 0].copy(), pat[0, :, 1].copy(), cost)
         outs.append((solved, slots.tolist(), pot.tobytes(), cxy, cost.tobytes()))
     assert outs[0] == outs[1]
+
+
+@pytest.mark.parametrize("mod", [A, PY], ids=["compiled", "python"])
+def test_a_robots_team_assignment_is_scipy_and_the_rule_step_after_step(mod: ModuleType) -> None:
+    """The robot's state object: a forming team, warm from step to step, gives scipy's
+    assignment with the hysteresis rule against its own last slots, and the centroid."""
+    rng = np.random.default_rng(21)
+    n = 12
+    pattern = rng.uniform(-2, 2, (n, 2))
+    cc = pattern - pattern.mean(axis=0)
+    goal = rng.uniform(0, 4, (n, 2))
+    pos = rng.uniform(0, 10, (n, 2))
+    team = mod.TeamAssignment(cc)
+    prev = None
+    for _ in range(40):
+        pos = pos + 0.1 * (goal - pos) + rng.normal(0, 0.01, pos.shape)
+        slots = np.empty(n, dtype=np.int64)
+        cx, cy = team.step(np.ascontiguousarray(pos), slots)
+        assert (cx, cy) == tuple((np.add.reduce(pos, 0) / n).tolist())
+        pc = pos - np.array([cx, cy])
+        cost = ((pc[:, None, :] - cc[None, :, :]) ** 2).sum(-1)
+        want = _rule(cost, prev)
+        np.testing.assert_array_equal(slots, want)
+        prev = slots
+    with pytest.raises(ValueError):
+        team.step(np.zeros((n + 1, 2)), np.empty(n + 1, dtype=np.int64))

@@ -268,10 +268,10 @@ def test_one_robots_row_is_its_row_of_the_teams(dtype: Any) -> None:
         full = np.full((E, n, rows.dim), np.nan, dtype=dtype)
         rows.teams(pos, vel, slots, pace, full)
         one = np.full((1, 1, rows.dim), np.nan, dtype=dtype)
+        one_row = rows.robot if dtype == np.float32 else rows.robot_f64
         for e in range(E):
             for i in range(n):
-                rows.robot(e, i, pos, vel, slots[e, i].reshape(1, 1, 2).copy(),
-                           pace[e : e + 1].copy(), one)
+                one_row(e, i, pos, vel, *slots[e, i], pace[e], one)
                 np.testing.assert_array_equal(one[0, 0], full[e, i])
             want = reference_rows(pos[e], pos[e] - vel[e] * W.dt_s, slots[e], k, W,
                                   pace[e] / REACH if pace[e] > 0 else None)
@@ -293,9 +293,10 @@ def test_uncompiled_rows_are_the_compiled_rows() -> None:
             np.testing.assert_array_equal(got, want)
             one_py, one_c = got[:1, :1].copy(), want[:1, :1].copy()
             i = n - 1
-            s, p = slots[E - 1, i].reshape(1, 1, 2).copy(), pace[E - 1 :].copy()
-            py.GeneralRows(k, REACH).robot(E - 1, i, pos, vel, s, p, one_py)
-            GeneralRows(k, REACH).robot(E - 1, i, pos, vel, s, p, one_c)
+            sx, sy, p = *slots[E - 1, i], pace[E - 1]
+            name = "robot" if dtype == np.float32 else "robot_f64"
+            getattr(py.GeneralRows(k, REACH), name)(E - 1, i, pos, vel, sx, sy, p, one_py)
+            getattr(GeneralRows(k, REACH), name)(E - 1, i, pos, vel, sx, sy, p, one_c)
             np.testing.assert_array_equal(one_py, one_c)
             np.testing.assert_array_equal(one_c[0, 0], want[E - 1, i])
 
@@ -306,11 +307,10 @@ def test_the_builder_refuses_what_does_not_fit() -> None:
         GeneralRows(-1, REACH)
     rows = GeneralRows(2, REACH)
     assert rows.dim == 16
-    slot, pace = np.zeros((1, 1, 2)), np.zeros(1)
     for e, i, width, vel in ((2, 0, 16, pos), (0, 3, 16, pos), (0, -1, 16, pos),
                              (0, 0, 15, pos), (0, 0, 16, pos[:1])):
         with pytest.raises(ValueError):
-            rows.robot(e, i, pos, vel, slot, pace, np.zeros((1, 1, width)))
+            rows.robot_f64(e, i, pos, vel, 0.0, 0.0, 0.0, np.zeros((1, 1, width)))
     with pytest.raises(ValueError):
         rows.teams(pos, pos, pos, np.zeros(1), np.zeros((2, 3, 16)))  # one pace for two teams
     with pytest.raises(ValueError):
