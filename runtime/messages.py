@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from runtime.patterns import MAX_PATTERN_COORD_M
-from runtime.pose_batch import MAX_POSES_ROBOTS, PoseBatch, decode_poses, encode_poses
+from runtime.pose_batch import PoseBatch, decode_poses, encode_poses
 from runtime.wire_codec import (
     COMMAND_VERSION,
     HEADER,
@@ -56,13 +56,32 @@ from runtime.wire_codec import (
     Tag,
     as_view,
     check_header,
-    columns,
     finite,
     json_object,
     read_text,
     uint,
     utf8,
 )
+from runtime.wire_fields import (
+    COMMAND,
+    MAX_BRAIN_ID_CHARS,
+    MAX_MANIFEST_BYTES,
+    MAX_ONNX_BYTES,
+    MAX_PATTERN_NAME_BYTES,
+    MAX_PATTERN_POINTS,
+    MAX_POSES_ROBOTS,
+    MAX_REQUEST_ID_BYTES,
+    MAX_STATUS_BYTES,
+    MAX_TARGET_ROBOTS,
+    POSE,
+    STATUS,
+    UINT_MAX,
+    Field,
+)
+
+# The layouts below (struct formats, numpy records, the fields a decoder checks) follow from
+# the field tables of runtime.wire_fields. The module docstring is the data of the wire schema
+# records of patternrl-wire logs (sim_bridge.log_layout.WIRE_SCHEMA_DATA): keep it as is.
 
 __all__ = [
     "COMMAND_HEAD_DTYPE",
@@ -107,16 +126,6 @@ __all__ = [
     "encode_status",
 ]
 
-MAX_BRAIN_ID_CHARS: Final = 64
-MAX_PATTERN_NAME_BYTES: Final = 1024
-MAX_PATTERN_POINTS: Final = 4096
-"""Points a pattern message may carry: 40x the largest team the design budgets (100)."""
-MAX_REQUEST_ID_BYTES: Final = 256
-MAX_MANIFEST_BYTES: Final = 1 << 20
-MAX_ONNX_BYTES: Final = 64 << 20
-MAX_TARGET_ROBOTS: Final = 65_536
-MAX_STATUS_BYTES: Final = 64 << 10
-
 # -- Pose -----------------------------------------------------------------------------------
 
 
@@ -138,12 +147,12 @@ class Pose:
     n_live: int
 
 
-_POSE: Final = struct.Struct("<BBIQdddddI")
-POSE_DTYPE: Final = columns(_POSE, ("tag", "version", "robot_id", "step", "time_s", "x", "y",
-                                     "vx", "vy", "n_live"))
+assert POSE.names() == tuple(f.name for f in fields(Pose))
+_POSE: Final = POSE.wire_struct()
+POSE_DTYPE: Final = POSE.wire_dtype()
 """A pose payload as one numpy record: ``np.frombuffer(b"".join(payloads), POSE_DTYPE)``."""
 _new: Final = object.__new__
-_POSE_FLOATS: Final = ("time_s", "x", "y", "vx", "vy")
+_POSE_FLOATS: Final = tuple(f.name for f in POSE.fields if f.kind == "f64")
 
 
 def _pose_bad_float(p: tuple[float, ...]) -> MessageError | None:
@@ -217,15 +226,18 @@ class Command:
             object.__setattr__(self, "brain_vy", self.vy)
 
 
-_COMMAND: Final = struct.Struct("<BBIQddBddddH")
-_COMMAND_V1: Final = struct.Struct("<BBIQddBddH")
-_HEAD_NAMES: Final = ("tag", "version", "robot_id", "step", "vx", "vy", "safety_changed",
-                      "safety_change_mps", "decision_us")
-COMMAND_HEAD_DTYPE: Final = columns(_COMMAND, (*_HEAD_NAMES, "brain_vx", "brain_vy",
-                                               "brain_len"))
+assert set(COMMAND.names(COMMAND_VERSION)) == {f.name for f in fields(Command)}
+_COMMAND: Final = COMMAND.wire_struct(COMMAND_VERSION)
+_COMMAND_V1: Final = COMMAND.wire_struct(1)
+COMMAND_HEAD_DTYPE: Final = COMMAND.wire_dtype(COMMAND_VERSION)
 """The fixed part of a command payload as one numpy record (the brain id follows it)."""
-COMMAND_HEAD_DTYPE_V1: Final = columns(_COMMAND_V1, (*_HEAD_NAMES, "brain_len"))
+COMMAND_HEAD_DTYPE_V1: Final = COMMAND.wire_dtype(1)
 """The same for a version 1 payload (no brain_vx, brain_vy)."""
+# the fixed part's floats, in layout order: what decode_command checks
+_COMMAND_FLOATS: Final = tuple(f.name for f in COMMAND.at(COMMAND_VERSION) if f.kind == "f64")
+assert COMMAND_HEAD_DTYPE.names == ("tag", "version", "robot_id", "step", "vx", "vy",
+                                    "safety_changed", "safety_change_mps", "decision_us",
+                                    "brain_vx", "brain_vy", "brain_len")
 
 
 def command_dtype(brain_len: int, version: int = COMMAND_VERSION) -> np.dtype[np.void]:
@@ -234,13 +246,14 @@ def command_dtype(brain_len: int, version: int = COMMAND_VERSION) -> np.dtype[np
     return np.dtype([*head.descr, ("brain", f"S{brain_len}")]) if brain_len else head
 
 
-_MAX_BRAIN_ID_BYTES: Final = 4 * MAX_BRAIN_ID_CHARS
+_BRAIN_ID: Final = COMMAND["brain_id"]
+_MAX_BRAIN_ID_BYTES: Final = _BRAIN_ID.max_bytes
 
 
 def encode_command(msg: Command) -> bytes:
     """Encode a :class:`Command` (version 2): 65 bytes plus the utf-8 brain id."""
     w = "command"
-    brain = utf8(w, "brain_id", msg.brain_id, _MAX_BRAIN_ID_BYTES, MAX_BRAIN_ID_CHARS)
+    brain = utf8(w, "brain_id", msg.brain_id, _MAX_BRAIN_ID_BYTES, _BRAIN_ID.max_chars)
     if not isinstance(msg.safety_changed, bool):
         raise MessageError(
             f"command.safety_changed must be a bool, got {type(msg.safety_changed).__name__}"
@@ -270,12 +283,11 @@ def decode_command(payload: Buffer) -> Command:
             _COMMAND, "the fixed part")
     if changed not in (0, 1):
         raise MessageError(f"command.safety_changed must be 0 or 1, got {changed}")
-    for name, v in (("vx", vx), ("vy", vy), ("safety_change_mps", change),
-                    ("decision_us", dec_us), ("brain_vx", bvx), ("brain_vy", bvy)):
+    for name, v in zip(_COMMAND_FLOATS, (vx, vy, change, dec_us, bvx, bvy), strict=True):
         finite(w, name, v)
     if n > _MAX_BRAIN_ID_BYTES:
         raise MessageError(f"command.brain_id claims {n} bytes, at most {_MAX_BRAIN_ID_BYTES}")
-    brain = read_text(w, "brain_id", r.take(n, "brain_id"), MAX_BRAIN_ID_CHARS)
+    brain = read_text(w, "brain_id", r.take(n, "brain_id"), _BRAIN_ID.max_chars)
     r.finish()
     return Command(rid, step, vx, vy, brain, bool(changed), change, dec_us, bvx, bvy)
 
@@ -308,54 +320,35 @@ class Status:
     old_brain_id: str = ""
 
 
-# Field kinds: "u32" / "u64" unsigned ints, "f" finite float, "b" bool, "s" str, "id" brain id.
-_STATUS_KINDS: Final[dict[str, str]] = {
-    "robot_id": "u32",
-    "step": "u64",
-    "brain_id": "id",
-    "decision_latency_us_p50": "f",
-    "decision_latency_us_p99": "f",
-    "loop_jitter_ms": "f",
-    "messages_dropped": "u64",
-    "errors": "u64",
-    "safety_interventions": "u64",
-    "last_error": "s",
-    "uptime_s": "f",
-    "swap_request_id": "s",
-    "swap_accepted": "b",
-    "swap_reason": "s",
-    "old_brain_id": "id",
-}
-assert tuple(_STATUS_KINDS) == tuple(f.name for f in fields(Status))
+_STATUS_FIELDS: Final[dict[str, Field]] = {f.name: f for f in STATUS.fields}
+assert tuple(_STATUS_FIELDS) == tuple(f.name for f in fields(Status))
 
 
 def _status_field(name: str, value: object) -> object:
     """Check one status field; return it in its canonical Python type."""
     w = "status"
-    kind = _STATUS_KINDS[name]
-    if kind == "u32":
-        return uint(w, name, value, U32)
-    if kind == "u64":
-        return uint(w, name, value, U64)
-    if kind == "f":
+    field = _STATUS_FIELDS[name]
+    kind = field.kind
+    if kind in UINT_MAX:
+        return uint(w, name, value, UINT_MAX[kind])
+    if kind == "f64":
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise MessageError(f"status.{name} must be a number, got {type(value).__name__}")
         try:
             return finite(w, name, float(value))
         except OverflowError:
             raise MessageError(f"status.{name} is out of float range") from None
-    if kind == "b":
+    if kind == "bool":
         if not isinstance(value, bool):
             raise MessageError(f"status.{name} must be a bool, got {type(value).__name__}")
         return value
-    max_chars = MAX_BRAIN_ID_CHARS if kind == "id" else -1
-    utf8(w, name, value, MAX_STATUS_BYTES, max_chars)
+    utf8(w, name, value, field.max_bytes, field.max_chars)
     return value
 
 
 def encode_status(msg: Status) -> bytes:
     """Encode a :class:`Status` as tag, version and a compact utf-8 JSON object."""
-    body = {name: _status_field(name, getattr(msg, name)) for name in _STATUS_KINDS}
+    body = {name: _status_field(name, getattr(msg, name)) for name in _STATUS_FIELDS}
     raw = json.dumps(body, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
     out = HEADER.pack(Tag.STATUS, VERSION) + raw.encode("utf-8")
     if len(out) > MAX_STATUS_BYTES:
@@ -373,13 +366,13 @@ def decode_status(payload: Buffer) -> Status:
         raise MessageError(f"status is {len(view)} bytes, at most {MAX_STATUS_BYTES}")
     text = read_text("status", "body", view[2:])
     body = json_object("status", text)
-    missing = [k for k in _STATUS_KINDS if k not in body]
+    missing = [k for k in _STATUS_FIELDS if k not in body]
     if missing:
         raise MessageError(f"status JSON lacks {', '.join(missing)}")
-    extra = sorted(k for k in body if k not in _STATUS_KINDS)
+    extra = sorted(k for k in body if k not in _STATUS_FIELDS)
     if extra:
         raise MessageError(f"status JSON has unknown keys {', '.join(map(repr, extra))}")
-    return Status(**{name: _status_field(name, body[name]) for name in _STATUS_KINDS})  # type: ignore[arg-type]
+    return Status(**{name: _status_field(name, body[name]) for name in _STATUS_FIELDS})  # type: ignore[arg-type]
 
 
 # -- Pattern --------------------------------------------------------------------------------

@@ -1,7 +1,9 @@
 """The world's poses of one step in ONE message: :class:`PoseBatch`, encode beside decode.
 
 Part of the wire messages of :mod:`runtime.messages` (which re-exports it and dispatches
-on its tag); it lives in its own file only to keep each file short. Layout, little-endian::
+on its tag); it lives in its own file only to keep each file short. Layout, little-endian,
+derived from the field tables :data:`~runtime.wire_fields.POSES_HEAD` and
+:data:`~runtime.wire_fields.POSES_ROW`::
 
     <BB Q d I>        tag (Tag.POSES), version, step, time_s, n          (22 bytes)
     n x <I d d d d>   robot_id, x, y, vx, vy; ids strictly ascending     (36 bytes each)
@@ -37,6 +39,7 @@ from runtime.wire_codec import (
     finite,
     uint,
 )
+from runtime.wire_fields import MAX_POSES_ROBOTS, POSES_HEAD, POSES_ROW
 
 __all__ = [
     "MAX_POSES_ROBOTS",
@@ -47,14 +50,15 @@ __all__ = [
     "encode_poses",
 ]
 
-MAX_POSES_ROBOTS: Final = 4096
-"""Robots one :class:`PoseBatch` may carry: 40x the largest team the design budgets (100)."""
-_HEAD: Final = struct.Struct("<BBQdI")
-POSES_ROW_DTYPE: Final = np.dtype([("robot_id", "<u4"), ("x", "<f8"), ("y", "<f8"),
-                                   ("vx", "<f8"), ("vy", "<f8")])
+_HEAD: Final = POSES_HEAD.wire_struct()
+POSES_ROW_DTYPE: Final = POSES_ROW.wire_dtype()
 """One robot's row of a payload (36 bytes, packed)."""
-_ROW: Final = 36
-assert POSES_ROW_DTYPE.itemsize == _ROW
+_ROW: Final = POSES_ROW_DTYPE.itemsize
+_ID_DTYPE: Final = POSES_ROW_DTYPE["robot_id"]
+_AT: Final = {name: at for name, (_, at, *_) in (POSES_ROW_DTYPE.fields or {}).items()}
+_XYV: Final = _AT["x"]  # x, y, vx, vy: four float64 from this offset
+assert POSES_ROW.names() == ("robot_id", "x", "y", "vx", "vy") and _AT["robot_id"] == 0
+assert [_AT[c] - _XYV for c in ("x", "y", "vx", "vy")] == [0, 8, 16, 24]
 
 
 def _ascending(ids: npt.NDArray[np.integer]) -> bool:
@@ -150,8 +154,8 @@ def decode_poses(payload: Buffer) -> PoseBatch:
     step, t, n, raw = _rows(payload)
     # two strided views of the rows, copied once each (no per-field passes)
     if n:
-        ids = np.ndarray((n,), "<u4", raw, 0, (_ROW,)).copy()
-        xyv = np.ndarray((n, 4), "<f8", raw, 4, (_ROW, 8)).copy()
+        ids = np.ndarray((n,), _ID_DTYPE, raw, 0, (_ROW,)).copy()
+        xyv = np.ndarray((n, 4), "<f8", raw, _XYV, (_ROW, 8)).copy()
     else:  # no rows: nothing to view (an offset into an empty buffer is refused)
         ids, xyv = np.zeros(0, np.uint32), np.zeros((0, 4))
     if not np.isfinite(xyv).all():
@@ -183,14 +187,14 @@ def decode_positions(payload: Buffer, max_abs_m: float) -> tuple[int, list[int],
     step, _, n, raw = _rows(payload)
     if not n:
         return step, [], np.zeros((0, 2))
-    xyv = np.ndarray((n, 4), "<f8", raw, 4, (_ROW, 8))
+    xyv = np.ndarray((n, 4), "<f8", raw, _XYV, (_ROW, 8))
     # one pass over the block: a NaN makes its column's maximum NaN, an inf inf
     mx, my, mvx, mvy = np.abs(xyv).max(axis=0).tolist()
     if not all(map(math.isfinite, (mx, my, mvx, mvy))):
         raise MessageError("poses: positions and velocities must all be finite")
     if not (mx <= max_abs_m and my <= max_abs_m):
         raise MessageError(f"poses: a position beyond {max_abs_m:g} m")
-    ids: list[int] = np.ndarray((n,), "<u4", raw, 0, (_ROW,)).tolist()
+    ids: list[int] = np.ndarray((n,), _ID_DTYPE, raw, 0, (_ROW,)).tolist()
     prev = -1
     for rid in ids:  # strictly ascending (ids are unsigned: -1 is below all)
         if rid <= prev:

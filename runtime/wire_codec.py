@@ -1,9 +1,9 @@
 """The building blocks of the wire codecs in :mod:`runtime.messages`.
 
 The 2-byte header every payload starts with (tag, format version), field checks
-shared by encoders and decoders, a bounds-checked payload reader and the numpy
-column layout of a packed struct. Every failure is a :class:`MessageError` with
-a one-line reason; the messages themselves live in :mod:`runtime.messages`.
+shared by encoders and decoders and a bounds-checked payload reader. Every failure
+is a :class:`MessageError` with a one-line reason; the messages' fields are laid out
+in :mod:`runtime.wire_fields`, the messages themselves live in :mod:`runtime.messages`.
 """
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ import math
 import struct
 from enum import IntEnum
 from typing import Any, Final, TypeAlias
-
-import numpy as np
 
 Buffer: TypeAlias = bytes | bytearray | memoryview
 """What decoders accept: any contiguous bytes-like payload."""
@@ -189,15 +187,3 @@ class Reader:
         if extra:
             raise MessageError(f"{extra} trailing bytes after {self._what}")
 
-
-def columns(fmt: struct.Struct, names: tuple[str, ...]) -> np.dtype[np.void]:
-    """The numpy structured dtype that views packed ``fmt`` records as named columns.
-
-    Built from the struct format itself, so a batch of payloads (``np.frombuffer``) reads
-    exactly what :mod:`struct` writes: a wire change is an edit of the format only.
-    """
-    codes = fmt.format.lstrip("<")
-    assert fmt.format.startswith("<") and len(codes) == len(names)
-    dt = np.dtype([(name, "<" + code) for name, code in zip(names, codes, strict=True)])
-    assert dt.itemsize == fmt.size
-    return dt

@@ -5,10 +5,10 @@ are viewed with the fixed layouts of :mod:`sim_bridge.log_schemas`; a payload in
 another layout (another writer) is parsed by protobuf, one by one. Those of old
 logs (``patternrl-wire``) are viewed with the numpy layouts of :mod:`runtime.messages`
 (:data:`~runtime.messages.POSE_DTYPE`, :func:`~runtime.messages.command_dtype`),
-which are derived from the very struct formats the robots and the world encode
-with. A payload that does not decode (wrong size, tag or version, a non-finite
-value, a robot id other than its key's) is counted as malformed and dropped, as
-the robots and the world drop it.
+which are derived, as the very struct formats the robots and the world encode with
+are, from the field tables of :mod:`runtime.wire_fields`. A payload that does not
+decode (wrong size, tag or version, a non-finite value, a robot id other than its
+key's) is counted as malformed and dropped, as the robots and the world drop it.
 """
 
 from __future__ import annotations
@@ -22,7 +22,19 @@ from numpy.typing import NDArray
 from runtime.messages import POSE_DTYPE, VERSION, Tag, command_dtype
 from runtime.types import Array, BoolArray, IntArray
 from runtime.wire_codec import reads
+from runtime.wire_fields import POSE
 from sim_bridge import log_schemas as pb
+
+_POSE_FIELDS = POSE.names()
+_POSE_FLOATS = tuple(f.name for f in POSE.fields if f.kind == "f64")
+
+
+def _finite(rec: NDArray[Any], names: tuple[str, ...]) -> BoolArray:
+    """Where every column ``names`` of ``rec`` is finite."""
+    good: BoolArray = np.isfinite(rec[names[0]])
+    for name in names[1:]:
+        good &= np.isfinite(rec[name])
+    return good
 
 
 @dataclass
@@ -134,9 +146,7 @@ def decode_poses(raw: list[bytes], idx: list[int], key_rid: list[int]
         key_rid = [key_rid[k] for k in ok_len]
     rec = np.frombuffer(b"".join(raw), dtype=POSE_DTYPE)
     good = (
-        (rec["tag"] == Tag.POSE) & (rec["version"] == VERSION)
-        & np.isfinite(rec["x"]) & np.isfinite(rec["y"]) & np.isfinite(rec["time_s"])
-        & np.isfinite(rec["vx"]) & np.isfinite(rec["vy"])
+        (rec["tag"] == Tag.POSE) & (rec["version"] == VERSION) & _finite(rec, _POSE_FLOATS)
         & (rec["robot_id"].astype(np.int64) == np.asarray(key_rid, np.int64))
     )
     bad += int((~good).sum())
@@ -301,14 +311,12 @@ def decode_poses_pb(raw: list[bytes], idx: list[int], key_rid: list[int]
     msgs, pos, bad = _parse_each(pb.ROBOT_POSE, raw, other)
     out = np.zeros(len(ok) + len(msgs), POSE_DTYPE)
     out["tag"], out["version"] = Tag.POSE, VERSION
-    for f in ("robot_id", "step", "time_s", "x", "y", "vx", "vy", "n_live"):
+    for f in _POSE_FIELDS:
         out[f][: len(ok)] = rec[f]
         out[f][len(ok):] = [getattr(m, f) for m in msgs]
     order = ok + pos
     rid = np.asarray(key_rid, np.int64)[order]
-    good = (np.isfinite(out["x"]) & np.isfinite(out["y"]) & np.isfinite(out["time_s"])
-            & np.isfinite(out["vx"]) & np.isfinite(out["vy"])
-            & (out["robot_id"].astype(np.int64) == rid))
+    good = _finite(out, _POSE_FLOATS) & (out["robot_id"].astype(np.int64) == rid)
     bad += int((~good).sum())
     sort = np.argsort(np.asarray(idx, np.int64)[order][good], kind="stable")
     return out[good][sort], np.asarray(idx, np.int64)[order][good][sort], bad

@@ -3,7 +3,9 @@
 Every Zenoh payload the recorder takes in is written as a protobuf message whose
 schema record holds a whole ``FileDescriptorSet`` (schema encoding ``protobuf``),
 so any MCAP tool decodes it (``mcap_protobuf.decoder.DecoderFactory``) without
-this project. Our own messages (package ``patternrl``, file ``patternrl/log.proto``)::
+this project. Our own messages (package ``patternrl``, file ``patternrl/log.proto``) are
+built from the field tables of :mod:`runtime.wire_fields` (names, types, field numbers;
+``RawSample``'s table is here), as are the fixed layouts below::
 
     RobotPose     1 robot_id fixed32, 2 step fixed64, 3 time_s double, 4 x double,
                   5 y double, 6 vx double, 7 vy double, 8 n_live fixed32      (m, m/s, s)
@@ -20,12 +22,14 @@ this project. Our own messages (package ``patternrl``, file ``patternrl/log.prot
     RawSample     1 key string, 2 size uint64, 3 reason string, 4 payload bytes
 
 Fixed-width fields make a pose or command the recorder writes one fixed layout
-(:data:`POSE_PB_DTYPE`, :func:`command_pb_dtype`; a command's fields 9 and 10 come
-before its brain id, field 8, and older logs lack them): the reader views a whole run's
-payloads as numpy columns at once and parses with protobuf only the payloads of
-another layout (another writer, proto3 zeros left out). :func:`encode_pose_pb`
-and :func:`encode_command_pb` write that layout with :mod:`struct`; a unit test
-parses them back with the protobuf library.
+(:data:`POSE_PB_DTYPE`, :func:`command_pb_dtype`): every field in table order, each
+after its one-byte protobuf tag, the fixed-size ones first and then the strings (a
+one-byte length, the bytes last) -- so a command's fields 9 and 10 come before its brain
+id, field 8, and older logs lack them. The reader views a whole run's payloads as numpy
+columns at once and parses with protobuf only the payloads of another layout (another
+writer, proto3 zeros left out). :func:`encode_pose_pb` and :func:`encode_command_pb`
+write that layout with :mod:`struct`; a unit test parses them back with the protobuf
+library.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError
 
 from runtime.messages import (
+    COMMAND_VERSION,
     BrainMsg,
     Command,
     PatternMsg,
@@ -51,52 +56,38 @@ from runtime.messages import (
     encode_pose,
     encode_status,
 )
+from runtime.wire_fields import BRAIN, COMMAND, POSE, STATUS, Field, FieldTable
+from runtime.wire_fields import PATTERN as PATTERN_FIELDS
 
 PROTOBUF: Final = "protobuf"
 """Message and schema encoding of every protobuf channel."""
 
 _F = descriptor_pb2.FieldDescriptorProto
-_FIXED32, _FIXED64, _DOUBLE, _BOOL, _STRING, _BYTES = (
-    _F.TYPE_FIXED32, _F.TYPE_FIXED64, _F.TYPE_DOUBLE, _F.TYPE_BOOL, _F.TYPE_STRING, _F.TYPE_BYTES)
-_UINT32, _UINT64 = _F.TYPE_UINT32, _F.TYPE_UINT64
-_REPEATED, _OPTIONAL = "repeated", "optional"
 
-_MESSAGES: Final[dict[str, list[tuple[str, int] | tuple[str, int, str]]]] = {
-    "RobotPose": [("robot_id", _FIXED32), ("step", _FIXED64), ("time_s", _DOUBLE),
-                  ("x", _DOUBLE), ("y", _DOUBLE), ("vx", _DOUBLE), ("vy", _DOUBLE),
-                  ("n_live", _FIXED32)],
-    "RobotCommand": [("robot_id", _FIXED32), ("step", _FIXED64), ("vx", _DOUBLE),
-                     ("vy", _DOUBLE), ("safety_changed", _BOOL), ("safety_change_mps", _DOUBLE),
-                     ("decision_us", _DOUBLE), ("brain_id", _STRING),
-                     ("brain_vx", _DOUBLE, _OPTIONAL), ("brain_vy", _DOUBLE, _OPTIONAL)],
-    "RobotStatus": [("robot_id", _UINT32), ("step", _UINT64), ("brain_id", _STRING),
-                    ("decision_latency_us_p50", _DOUBLE), ("decision_latency_us_p99", _DOUBLE),
-                    ("loop_jitter_ms", _DOUBLE), ("messages_dropped", _UINT64),
-                    ("errors", _UINT64), ("safety_interventions", _UINT64),
-                    ("last_error", _STRING), ("uptime_s", _DOUBLE),
-                    ("swap_request_id", _STRING), ("swap_accepted", _BOOL),
-                    ("swap_reason", _STRING), ("old_brain_id", _STRING)],
-    "Pattern": [("version", _UINT64), ("name", _STRING), ("formed_tol_m", _DOUBLE),
-                ("x", _DOUBLE, _REPEATED), ("y", _DOUBLE, _REPEATED)],
-    "BrainSwap": [("request_id", _STRING), ("manifest_json", _STRING), ("onnx", _BYTES),
-                  ("target_robots", _UINT32, _REPEATED)],
-    "RawSample": [("key", _STRING), ("size", _UINT64), ("reason", _STRING),
-                  ("payload", _BYTES)],
-}
+RAW_SAMPLE_FIELDS: Final = FieldTable("raw sample", "RawSample", (
+    Field("key", "str", 1),
+    Field("size", "u64", 2),
+    Field("reason", "str", 3),
+    Field("payload", "bytes", 4),
+))
+"""A Zenoh payload kept as it came (too large, or not a message): the log's own message."""
+TABLES: Final = (POSE, COMMAND, STATUS, PATTERN_FIELDS, BRAIN, RAW_SAMPLE_FIELDS)
+"""The field table of each of our messages, in the order of ``patternrl/log.proto``."""
 
 
 def _file_proto() -> descriptor_pb2.FileDescriptorProto:
     fdp = descriptor_pb2.FileDescriptorProto(name="patternrl/log.proto", package="patternrl",
                                              syntax="proto3")
-    for name, spec in _MESSAGES.items():
-        m = fdp.message_type.add(name=name)
-        for number, f in enumerate(spec, start=1):
-            label = _F.LABEL_REPEATED if f[2:] == (_REPEATED,) else _F.LABEL_OPTIONAL
-            field = m.field.add(name=f[0], number=number, type=f[1], label=label, json_name=f[0])
-            if f[2:] == (_OPTIONAL,):  # proto3 presence: an old log's absent field is not 0
+    for table in TABLES:
+        m = fdp.message_type.add(name=table.proto)
+        for f in table.fields:
+            label = _F.LABEL_REPEATED if f.repeated else _F.LABEL_OPTIONAL
+            field = m.field.add(name=f.name, number=f.number, label=label, json_name=f.name,
+                                type=_F.Type.Value("TYPE_" + table.pb_type(f).upper()))
+            if f.since > 1:  # proto3 presence: an old log's absent field is not 0
                 field.proto3_optional = True
                 field.oneof_index = len(m.oneof_decl)
-                m.oneof_decl.add(name=f"_{f[0]}")
+                m.oneof_decl.add(name=f"_{f.name}")
     return fdp
 
 
@@ -149,28 +140,57 @@ def _tag(field: int, wire_type: int) -> int:
 # -- fixed layouts --------------------------------------------------------------------------
 
 _D, _Q, _I, _V, _L = 1, 1, 5, 0, 2  # wire types: 64-bit, 64-bit, 32-bit, varint, length
-_POSE_PB: Final = struct.Struct("<BIBQBdBdBdBdBdBI")
-_POSE_TAGS: Final = (_tag(1, _I), _tag(2, _Q), _tag(3, _D), _tag(4, _D), _tag(5, _D),
-                     _tag(6, _D), _tag(7, _D), _tag(8, _I))
-_POSE_NAMES: Final = ("robot_id", "step", "time_s", "x", "y", "vx", "vy", "n_live")
-POSE_PB_DTYPE: Final = np.dtype([
-    (n, f) for k, n in enumerate(_POSE_NAMES)
-    for n, f in ((f"t{k + 1}", "u1"), (n, {"robot_id": "<u4", "step": "<u8",
-                                            "n_live": "<u4"}.get(n, "<f8")))])
+_FIXED: Final[dict[str, tuple[int, str]]] = {
+    # protobuf type: (wire type, struct code of its value in the fixed layout)
+    "fixed32": (_I, "I"), "fixed64": (_Q, "Q"), "double": (_D, "d"),
+    "bool": (_V, "B"),  # 0 or 1: a one-byte varint
+    "string": (_L, "B"),  # its length, a one-byte varint; the bytes come last
+}
+
+
+def fixed_layout(table: FieldTable, version: int = 1) -> tuple[tuple[str, int, str], ...]:
+    """(column, tag byte, struct code) of each value of ``table``'s fixed protobuf layout
+    of format ``version``: the fixed-size fields in table order, then each string's length
+    (its bytes follow, in the same order). Only for ``fixed_width`` tables."""
+    fs = table.at(version)
+    assert table.fixed_width and not any(f.repeated for f in fs), table.name
+    out = []
+    for f in (*(f for f in fs if not f.variable), *(f for f in fs if f.variable)):
+        wire_type, code = _FIXED[table.pb_type(f)]
+        out.append((f.col + "_len" if f.variable else f.col, _tag(f.number, wire_type), code))
+    return tuple(out)
+
+
+def _fixed_struct(layout: tuple[tuple[str, int, str], ...]) -> struct.Struct:
+    return struct.Struct("<" + "".join("B" + code for _, _, code in layout))
+
+
+def _fixed_dtype(layout: tuple[tuple[str, int, str], ...]) -> np.dtype[np.void]:
+    dt = np.dtype([f for k, (col, _, code) in enumerate(layout, start=1)
+                   for f in ((f"t{k}", "u1"), (col, "<" + code))])
+    assert dt.itemsize == _fixed_struct(layout).size
+    return dt
+
+
+def _fixed_tags(layout: tuple[tuple[str, int, str], ...]) -> dict[str, int]:
+    return {f"t{k}": tag for k, (_, tag, _) in enumerate(layout, start=1)}
+
+
+_POSE_LAYOUT: Final = fixed_layout(POSE)
+_POSE_PB: Final = _fixed_struct(_POSE_LAYOUT)
+_POSE_TAGS: Final = tuple(tag for _, tag, _ in _POSE_LAYOUT)
+POSE_PB_DTYPE: Final = _fixed_dtype(_POSE_LAYOUT)
 """A :func:`encode_pose_pb` payload as one numpy record (tag bytes ``t1``..``t8``)."""
-POSE_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 9)), _POSE_TAGS, strict=True))
+POSE_PB_TAGS: Final = _fixed_tags(_POSE_LAYOUT)
 assert POSE_PB_DTYPE.itemsize == _POSE_PB.size == 64
 
-_CMD_PB: Final = struct.Struct("<BIBQBdBdBBBdBdBdBdBB")
-_CMD_TAGS: Final = (_tag(1, _I), _tag(2, _Q), _tag(3, _D), _tag(4, _D), _tag(5, _V),
-                    _tag(6, _D), _tag(7, _D), _tag(9, _D), _tag(10, _D), _tag(8, _L))
-_CMD_NAMES: Final = ("robot_id", "step", "vx", "vy", "safety_changed", "safety_change_mps",
-                     "decision_us", "brain_vx", "brain_vy", "brain_len")
-_CMD_FMT: Final = {"robot_id": "<u4", "step": "<u8", "safety_changed": "u1", "brain_len": "u1"}
-COMMAND_PB_TAGS: Final = dict(zip((f"t{k}" for k in range(1, 11)), _CMD_TAGS, strict=True))
+_CMD_LAYOUTS: Final = {v: fixed_layout(COMMAND, v) for v in (1, COMMAND_VERSION)}
+_CMD_PB: Final = _fixed_struct(_CMD_LAYOUTS[COMMAND_VERSION])
+_CMD_TAGS: Final = tuple(tag for _, tag, _ in _CMD_LAYOUTS[COMMAND_VERSION])
+_CMD_HEADS: Final = {v: _fixed_dtype(layout) for v, layout in _CMD_LAYOUTS.items()}
+COMMAND_PB_TAGS: Final = _fixed_tags(_CMD_LAYOUTS[COMMAND_VERSION])
 """Tag byte of each field of :func:`command_pb_dtype` (``t1``..``t10``, in layout order)."""
-_V1 = (*range(7), 9)  # the fields of the layout written before brain_vx, brain_vy
-COMMAND_PB_TAGS_V1: Final = {f"t{k + 1}": _CMD_TAGS[j] for k, j in enumerate(_V1)}
+COMMAND_PB_TAGS_V1: Final = _fixed_tags(_CMD_LAYOUTS[1])
 """The same for the older layout (:func:`command_pb_dtype` with ``old=True``)."""
 MAX_FIXED_BRAIN_BYTES: Final = 127
 """Brain ids up to this many bytes keep a one-byte length: the fixed layout."""
@@ -179,13 +199,8 @@ MAX_FIXED_BRAIN_BYTES: Final = 127
 def command_pb_dtype(brain_len: int, old: bool = False) -> np.dtype[np.void]:
     """A :func:`encode_command_pb` payload whose brain id is ``brain_len`` bytes; ``old``:
     one of a log written before fields 9 and 10 (brain_vx, brain_vy)."""
-    names = [_CMD_NAMES[j] for j in _V1] if old else _CMD_NAMES
-    fields: list[tuple[str, str]] = []
-    for k, n in enumerate(names):
-        fields += [(f"t{k + 1}", "u1"), (n, _CMD_FMT.get(n, "<f8"))]
-    if brain_len:
-        fields.append(("brain", f"S{brain_len}"))
-    return np.dtype(fields)
+    head = _CMD_HEADS[1 if old else COMMAND_VERSION]
+    return np.dtype([*head.descr, ("brain", f"S{brain_len}")]) if brain_len else head
 
 
 def encode_pose_pb(p: Pose) -> bytes:
@@ -212,7 +227,7 @@ def encode_command_pb(c: Command) -> bytes:
 
 
 def status_pb(s: Status) -> bytes:
-    m = message_class(ROBOT_STATUS)(**{f: getattr(s, f) for f, *_ in _MESSAGES["RobotStatus"]})
+    m = message_class(ROBOT_STATUS)(**{f: getattr(s, f) for f in STATUS.names()})
     return bytes(m.SerializeToString())
 
 
@@ -254,13 +269,13 @@ def to_wire(name: str, data: bytes) -> bytes:
     """The Zenoh payload a recorded protobuf message stands for (play-back puts it back)."""
     m = parse(name, data)
     if name == ROBOT_POSE:
-        return encode_pose(Pose(m.robot_id, m.step, m.time_s, m.x, m.y, m.vx, m.vy, m.n_live))
+        return encode_pose(Pose(*(getattr(m, f) for f in POSE.names())))
     if name == ROBOT_COMMAND:
         return encode_command(Command(m.robot_id, m.step, m.vx, m.vy, m.brain_id,
                                       m.safety_changed, m.safety_change_mps, m.decision_us,
                                       *brain_velocity(m)))
     if name == ROBOT_STATUS:
-        return encode_status(Status(**{f: getattr(m, f) for f, *_ in _MESSAGES["RobotStatus"]}))
+        return encode_status(Status(**{f: getattr(m, f) for f in STATUS.names()}))
     if name == PATTERN:
         pts = np.stack([np.asarray(m.x, float), np.asarray(m.y, float)], axis=1).reshape(-1, 2)
         return encode_pattern(PatternMsg(m.version, m.name, pts, m.formed_tol_m))

@@ -16,6 +16,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from patternrl.cli import main as cli
 from runtime import keys
 from runtime.messages import Command, Pose, decode_command, encode_command, encode_pose
+from runtime.wire_fields import COMMAND, POSE, FieldTable
 from sim_bridge import log_schemas as pb
 from sim_bridge.log_columns import decode_commands_pb, decode_poses_pb
 from sim_bridge.log_layout import MAX_PAYLOAD_BYTES
@@ -51,6 +52,72 @@ def test_a_command_in_the_fixed_layout_parses_with_protobuf(cmd: Command) -> Non
     assert pb.to_wire(pb.ROBOT_COMMAND, data) == encode_command(cmd)
     c, bad = decode_commands_pb([data], [cmd.robot_id], [0])
     assert bad == 0 and c.brain_v.tolist() == [[cmd.brain_vx, cmd.brain_vy]]
+
+
+def _values(table: FieldTable, version: int) -> dict[str, object]:
+    """A distinct value for each field of ``table`` of format ``version``."""
+    out: dict[str, object] = {}
+    for k, f in enumerate(table.at(version), start=1):
+        out[f.name] = {"u32": 2**32 - k, "u64": 2**64 - k, "f64": -1.5 * k - 0.25,
+                       "bool": True, "str": "brain-" * k}[f.kind]
+    return out
+
+
+@pytest.mark.parametrize(("table", "version"), [(POSE, 1), (COMMAND, 1), (COMMAND, 2)])
+def test_the_descriptor_of_a_table_parses_its_fixed_layout(table: FieldTable,
+                                                           version: int) -> None:
+    """The fixed layout derived from a field table, packed with struct, parses field by
+    field with the protobuf descriptor derived from the same table; fields added by a
+    later format are absent (no presence), not zero."""
+    layout = pb.fixed_layout(table, version)
+    fmt = struct.Struct("<" + "".join("B" + code for _, _, code in layout))
+    values = _values(table, version)
+    args: list[object] = []
+    tail = b""
+    for (col, tag, _), f in zip(layout, [*(f for f in table.at(version) if not f.variable),
+                                         *(f for f in table.at(version) if f.variable)],
+                                strict=True):
+        v = values[f.name]
+        if isinstance(v, str):
+            raw = v.encode()
+            args += [tag, len(raw)]
+            tail += raw
+            assert col == f.col + "_len"
+        else:
+            args += [tag, v]
+            assert col == f.col
+    data = fmt.pack(*args) + tail
+    m = pb.parse(f"patternrl.{table.proto}", data)
+    for f in table.fields:
+        if f.since <= version:
+            assert getattr(m, f.name) == values[f.name], f.name
+        if f.since > 1:  # proto3 optional: present only where the format has it
+            assert m.HasField(f.name) == (f.since <= version), f.name
+    # the dtype of the fixed layout views the very same bytes
+    blen = len(tail)
+    dt = (pb.POSE_PB_DTYPE if table is POSE else pb.command_pb_dtype(blen, old=version == 1))
+    assert dt.itemsize == len(data) and fmt.size == dt.itemsize - blen
+    (rec,) = np.frombuffer(data, dt)
+    tags = pb.POSE_PB_TAGS if table is POSE else (
+        pb.COMMAND_PB_TAGS if version == 2 else pb.COMMAND_PB_TAGS_V1)
+    assert {t: int(rec[t]) for t in tags} == tags
+    for f in table.at(version):
+        if not f.variable:
+            assert rec[f.col] == values[f.name], f.name
+
+
+def test_the_encoders_write_the_derived_fixed_layouts() -> None:
+    """encode_pose_pb and encode_command_pb write what the tables' layouts pack."""
+    values = _values(POSE, 1)
+    p = Pose(**values)  # type: ignore[arg-type]
+    # every value non-zero: the protobuf library writes the same bytes
+    assert pb.encode_pose_pb(p) == pb.message_class(pb.ROBOT_POSE)(**values).SerializeToString()
+    c = COMMANDS[3]
+    rec = np.frombuffer(pb.encode_command_pb(c), pb.command_pb_dtype(len(c.brain_id)))[0]
+    for f in COMMAND.fields:
+        if not f.variable:
+            assert rec[f.col] == getattr(c, f.name), f.name
+    assert bytes(rec["brain"]).decode() == c.brain_id
 
 
 def _old_command_pb(c: Command) -> bytes:

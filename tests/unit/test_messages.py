@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import struct
@@ -13,8 +14,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime import keys
+from runtime import keys, pose_batch
 from runtime import messages as m
+from runtime import wire_fields as wf
 from runtime.messages import (
     BrainMsg,
     Command,
@@ -245,6 +247,51 @@ def test_numpy_columns_read_what_the_encoders_write() -> None:
         brain = bytes(r["brain"]).decode() if "brain" in (dt.names or ()) else ""
         assert r["brain_len"] == len(c.brain_id.encode()) and brain == c.brain_id
         assert (r["brain_vx"], r["brain_vy"]) == (c.brain_vx, c.brain_vy)
+
+
+def test_field_tables_give_todays_wire_formats() -> None:
+    """The struct formats and numpy layouts derived from the field tables: the bytes on the
+    wire are these (a table edit that moves a byte fails here), sizes equal itemsizes."""
+    want = {(wf.POSE, 1): "<BBIQdddddI", (wf.COMMAND, 1): "<BBIQddBddH",
+            (wf.COMMAND, 2): "<BBIQddBddddH", (wf.POSES_HEAD, 1): "<BBQdI",
+            (wf.POSES_ROW, 1): "<Idddd"}
+    for (table, version), fmt in want.items():
+        st_, dt = table.wire_struct(version), table.wire_dtype(version)
+        assert st_.format == fmt and st_.size == dt.itemsize, (table.name, version)
+        assert dt.names == tuple(name for name, _ in table.wire_layout(version))
+    assert m.POSE_DTYPE == wf.POSE.wire_dtype() and m.POSE_DTYPE.itemsize == 58
+    assert m.COMMAND_HEAD_DTYPE.itemsize == 65 and m.COMMAND_HEAD_DTYPE_V1.itemsize == 49
+    assert m.command_dtype(0, 1) == m.COMMAND_HEAD_DTYPE_V1
+    assert m.command_dtype(5).itemsize == 70 and m.command_dtype(5).names[-2:] == (
+        "brain_len", "brain")
+    assert pose_batch.POSES_ROW_DTYPE.itemsize == 36
+    # the tables and the dataclasses name the same fields
+    assert wf.POSE.names() == tuple(f.name for f in dataclasses.fields(Pose))
+    assert wf.STATUS.names() == tuple(f.name for f in dataclasses.fields(Status))
+    assert set(wf.COMMAND.names(2)) == {f.name for f in dataclasses.fields(Command)}
+    assert set(wf.COMMAND.names(2)) - set(wf.COMMAND.names(1)) == {"brain_vx", "brain_vy"}
+    with pytest.raises(ValueError, match="repeated"):
+        wf.PATTERN.wire_struct()
+
+
+def test_the_codecs_check_the_bounds_of_the_tables() -> None:
+    brain = wf.COMMAND["brain_id"]
+    assert (brain.max_chars, brain.max_bytes) == (m.MAX_BRAIN_ID_CHARS, 4 * m.MAX_BRAIN_ID_CHARS)
+    too_long = Command(1, 2, 0.0, 0.0, "x" * (brain.max_chars + 1), False, 0.0, 0.0)
+    with pytest.raises(MessageError, match=f"at most {brain.max_chars}"):
+        m.encode_command(too_long)
+    tol = wf.PATTERN["formed_tol_m"]
+    assert tol.lo == 0.0
+    with pytest.raises(MessageError, match=">= 0"):
+        m.encode_pattern(PatternMsg(1, "p", np.zeros((1, 2)), -0.5))
+    far = wf.PATTERN["x"].hi
+    assert far == m.MAX_PATTERN_COORD_M
+    with pytest.raises(MessageError, match="from the origin"):
+        m.encode_pattern(PatternMsg(1, "p", [[2 * far, 0.0]], 0.1))
+    status = SAMPLES["status"]
+    assert isinstance(status, Status)
+    with pytest.raises(MessageError, match="old_brain_id"):
+        m.encode_status(dataclasses.replace(status, old_brain_id="y" * 65))
 
 
 # -- refusals at encode ---------------------------------------------------------------------
