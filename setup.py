@@ -1,4 +1,4 @@
-"""The compiled decision (runtime/core/*.py) and contact model (trainer/contacts.py).
+"""The compiled decision (runtime/core/*.py) and contact model (trainer/world/contacts.py).
 
 Everything else about the package is in pyproject.toml. Each module is plain Python in
 Cython's pure-Python mode, compiled at install; the build is optional: without a C compiler
@@ -12,7 +12,7 @@ from setuptools import Extension, setup
 # the decision's math (runtime/core) and the training world's contact model
 COMPILED = [
     *sorted(p for p in Path("runtime/core").glob("*.py") if p.name != "__init__.py"),
-    Path("trainer/contacts.py"),
+    Path("trainer/world/contacts.py"),
 ]
 
 

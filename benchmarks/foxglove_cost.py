@@ -1,15 +1,16 @@
 """What the live Foxglove view (``--foxglove``) costs the world per step, at 10 and 50 robots.
 
 Each step does what the world's step does for its log: every robot's pose and
-command through :meth:`sim_bridge.recorder.Recorder.write_wire` (decoded, written as
+command through :meth:`sim_bridge.log.recorder.Recorder.write_wire` (decoded, written as
 protobuf, a ``PoseInFrame`` per robot and the step's ``/tf``), one metrics row and
 one ``foxglove.SceneUpdate``. Configurations, measured in the same run, rounds
 interleaved, each the median of the per-step wall times:
 
 * ``log``: the recorder writing the MCAP file (the world with ``--record``);
-* ``log + live``: the same with the live server (:class:`sim_bridge.foxglove_live.FoxgloveLive`)
-  and one WebSocket client subscribed to every channel, reading as fast as it can
-  (:class:`sim_bridge.foxglove_client.FoxgloveClient`, in this process: its CPU is
+* ``log + live``: the same with the live server
+  (:class:`sim_bridge.live.foxglove_live.FoxgloveLive`) and one WebSocket client subscribed to
+  every channel, reading as fast as it can
+  (:class:`sim_bridge.live.foxglove_client.FoxgloveClient`, in this process: its CPU is
   on this machine too, as a viewer's would be);
 * ``live only``: the live server and client without a file (``--foxglove`` alone).
 
@@ -35,13 +36,13 @@ from typing import Any
 
 import numpy as np
 
-from runtime import keys
-from runtime.messages import Command, Pose, encode_command, encode_pose
+from runtime.wire import keys
+from runtime.wire.messages import Command, Pose, encode_command, encode_pose
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.foxglove_client import FoxgloveClient
-from sim_bridge.foxglove_live import FoxgloveLive
-from sim_bridge.recorder import Recorder, SimTime
-from sim_bridge.scene import scene_update
+from sim_bridge.live.foxglove_client import FoxgloveClient
+from sim_bridge.live.foxglove_live import FoxgloveLive
+from sim_bridge.live.scene import scene_update
+from sim_bridge.log.recorder import Recorder, SimTime
 
 
 class Viewer:

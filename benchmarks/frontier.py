@@ -4,7 +4,7 @@ A team cannot both land in the fewest steps and travel the fewest metres: the
 two lower bounds (DESIGN.md section 1) are met by different plans. This script
 measures where each brain sits, as ``patternrl eval`` measures it
 (:func:`trainer.evaluate.evaluate_brain`: the training world and the robot's
-own :func:`runtime.decision.decide_batch`, ORCA filter on with its defaults),
+own :func:`runtime.decision.pipeline.decide_batch`, ORCA filter on with its defaults),
 on 4 built-in patterns (circle, cross, heart, triangle) and random shapes, for
 teams of 7, 13, 25 and 50. Episode ``e`` of a team size ``n`` is the first
 episode of env ``e`` of a world seeded with ``--seed + n``: every brain sees
@@ -15,7 +15,7 @@ travel / lower bound (means over formed episodes). Per brain: the mean of the
 ratios over the cases, the worst success, the collisions.
 
 The frontier. Straight-line plans in one frame fixed per pattern, every robot
-arriving at the same step (:func:`runtime.rules.frame_plan`), with the frame
+arriving at the same step (:func:`runtime.decision.rules.frame_plan`), with the frame
 slid from the one of fewest steps (``travel_weight`` 0, ``rule:frame``) to the
 team's centroid (1, ``rule:frame-travel``), run on the same starts without the
 filter: the curve they trace in (steps ratio, travel ratio) is the reference
@@ -51,9 +51,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runtime.brain import RULES, Brain, BrainError, load_brain  # noqa: E402 -- path set-up
-from runtime.rules import FrameRule  # noqa: E402
-from runtime.safety import OrcaParams  # noqa: E402
+from runtime.brain.brain import RULES, Brain, BrainError, load_brain  # noqa: E402 -- path set-up
+from runtime.decision.rules import FrameRule  # noqa: E402
+from runtime.decision.safety import OrcaParams  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 
 PATTERNS = ("circle", "cross", "heart", "triangle", "random")

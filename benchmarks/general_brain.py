@@ -9,8 +9,8 @@ robots. Each case runs the same seeded episodes (episode ``e`` is the first
 episode of env ``e`` of a world seeded with ``--seed + n``, so every brain and
 every pattern of a team size starts from the same positions) with
 :func:`trainer.evaluate.evaluate_brain`: the training world
-(:class:`trainer.training_world.BatchWorld`) and the runtime's
-:func:`runtime.decision.decide_batch`, exactly as a robot decides (shared slot
+(:class:`trainer.world.training_world.BatchWorld`) and the runtime's
+:func:`runtime.decision.pipeline.decide_batch`, exactly as a robot decides (shared slot
 assignment with hysteresis, the observation builder, the policy mean, the clamp
 to v_max, the ORCA filter). Four brains on the same episodes:
 
@@ -38,7 +38,7 @@ heart then star. When the world has run ``--kill-step`` steps of the heart (a
 watcher on the swarm follows the poses), two robots are killed by PID
 (SIGKILL); the world sees their liveliness go and publishes the pattern resized
 to the 10 left. The result is read from the run's MCAP alone
-(:func:`sim_bridge.log_report.report_log`): who left and when, whether and in how
+(:func:`sim_bridge.log.report.report_log`): who left and when, whether and in how
 many steps each phase formed, collisions and the smallest separation, and which
 brains decided (and that no brain was swapped).
 
@@ -71,9 +71,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runtime.brain import RULE_ASSIGN, Brain, load_brain  # noqa: E402 -- after the path set-up
-from runtime.patterns import make_pattern, min_spacing, resample_polyline  # noqa: E402
-from runtime.safety import OrcaParams  # noqa: E402
+from runtime.brain.brain import RULE_ASSIGN, Brain, load_brain  # noqa: E402 -- after the path set-up
+from runtime.decision.patterns import make_pattern, min_spacing, resample_polyline  # noqa: E402
+from runtime.decision.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from trainer.evaluate import EvalResult, evaluate_brain  # noqa: E402
 
@@ -267,8 +267,8 @@ class StepWatcher:
     """A Zenoh peer on the swarm that follows the highest step of the world's poses."""
 
     def __init__(self, swarm: str, port: int) -> None:
-        from runtime import keys
-        from runtime.zenoh_session import open_session
+        from runtime.net.session import open_session
+        from runtime.wire import keys
 
         self.session = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"],
                                     listen=["tcp/127.0.0.1:0"])
@@ -277,7 +277,7 @@ class StepWatcher:
         self.sub = self.session.declare_subscriber(keys.all_poses(swarm), self._on_pose)
 
     def _on_pose(self, sample: Any) -> None:
-        from runtime.messages import MessageError, decode_pose
+        from runtime.wire.messages import MessageError, decode_pose
 
         try:
             p = decode_pose(sample.payload.to_bytes())
@@ -297,7 +297,7 @@ class StepWatcher:
 def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...],
                 kill_step: int, seed: int, timeout_s: float = 240.0) -> dict[str, Any]:
     """Launch world + robots, kill ``kill`` by PID at ``kill_step``, analyse the MCAP."""
-    from sim_bridge.log_report import report_log
+    from sim_bridge.log.report import report_log
 
     star = write_pattern(out_dir / "patterns" / f"n{robots}", "star", robots)
     log = out_dir / "dropout.mcap"
@@ -391,7 +391,7 @@ def dropout_run(brain_ref: str, out_dir: Path, robots: int, kill: tuple[int, ...
 
 
 def _events(log: Path) -> list[dict[str, Any]]:
-    from sim_bridge.log_reader import read_log
+    from sim_bridge.log.reader import read_log
 
     return list(read_log(log).events)
 

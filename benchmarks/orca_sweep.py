@@ -49,10 +49,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runtime.brain import make_rule  # noqa: E402 -- after the path set-up
-from runtime.decision import commands  # noqa: E402
-from runtime.formation import min_separation, min_swept_separation  # noqa: E402
-from runtime.safety import OrcaParams  # noqa: E402
+from runtime.brain.brain import make_rule  # noqa: E402 -- after the path set-up
+from runtime.decision.formation import min_separation, min_swept_separation  # noqa: E402
+from runtime.decision.pipeline import commands  # noqa: E402
+from runtime.decision.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 

@@ -11,7 +11,7 @@ brains and how long the run took, and the command that regenerates it.
     The ``circle`` pattern with n robots is the regular n-gon (side 4R). Every
     method runs the same episodes through :func:`trainer.evaluate.evaluate_brain`
     (the training world, every decision through the robot's own pipeline,
-    :func:`runtime.decision.decide_batch`); episode ``e`` starts where env ``e``
+    :func:`runtime.decision.pipeline.decide_batch`); episode ``e`` starts where env ``e``
     of ``BatchWorld(seed)`` starts, whatever the method. Methods:
 
     ================== ==========================================================
@@ -43,12 +43,12 @@ brains and how long the run took, and the command that regenerates it.
     ``patternrl robot`` process per robot over Zenoh on loopback, lockstep), one
     run per pattern from the same seeded starts, for the learned brain raw, with
     the filter, and the rule + ORCA baseline. The figure is drawn from the MCAP
-    logs (:mod:`sim_bridge.plots`); the table comes from the world's results and
+    logs (:mod:`sim_bridge.log.plots`); the table comes from the world's results and
     the logged commands.
 
 (d) Per-decision latency vs the paper's 1.2 ms (IV.B)
     :func:`benchmarks.runtime_latency.decision_latency`: each of 10 robots
-    decides with its own :class:`runtime.controller.Controller` while the team
+    decides with its own :class:`runtime.decision.controller.Controller` while the team
     forms a circle (assignment + observation + brain + filter), wall clock.
 """
 
@@ -78,8 +78,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from runtime.brain import RULE_ASSIGN, Brain, BrainError, load_brain  # noqa: E402
-from runtime.safety import OrcaParams  # noqa: E402
+from runtime.brain.brain import RULE_ASSIGN, Brain, BrainError, load_brain  # noqa: E402
+from runtime.decision.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 from trainer.evaluate import DEFAULT_EVAL_SEED, EvalResult, evaluate_brain  # noqa: E402
 
@@ -453,7 +453,7 @@ class WorldRun:
 
 def launch_once(run: WorldRun, pattern: str, robots: int, seed: int, logs: Path) -> dict[str, Any]:
     """One ``patternrl launch`` (world + robot processes over Zenoh); its phase and log."""
-    from sim_bridge.log_reader import read_log
+    from sim_bridge.log.reader import read_log
 
     log = logs / f"fig6-{run.tag}-{pattern}.mcap"
     cmd = [sys.executable, "-m", "patternrl.cli", "launch", "--robots", str(robots),
@@ -485,9 +485,9 @@ def fig6_brain(pattern: str, brains_dir: Path, fallback: str) -> str:
 def run_fig6(
     fallback: str, brains_dir: Path, robots: int, seed: int, logs: Path, png: Path
 ) -> list[dict[str, Any]]:
-    from sim_bridge.log_reader import read_log
-    from sim_bridge.log_report import analyse
-    from sim_bridge.plots import draw_trajectories, phase_tracks
+    from sim_bridge.log.plots import draw_trajectories, phase_tracks
+    from sim_bridge.log.reader import read_log
+    from sim_bridge.log.report import analyse
 
     logs.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
@@ -519,7 +519,7 @@ def run_fig6(
 
 def run_latency(brain_ref: str, brain: Brain, samples: int) -> dict[str, Any]:
     rl = _bench("runtime_latency")
-    from runtime.brain import RuleBrain
+    from runtime.brain.brain import RuleBrain
 
     rows = []
     for name, b in ((Path(brain_ref).stem, brain), (RULE_ASSIGN, RuleBrain())):
@@ -696,7 +696,7 @@ def write_doc(ctx: dict[str, Any], path: Path) -> None:
     L += [
         "n robots form the regular n-gon (the `circle` pattern, side 4R) from uniform random "
         "starts in the arena. Methods, all deciding through the robot's own pipeline "
-        "(`runtime.decision.decide_batch`, as `patternrl eval` runs them):", "",
+        "(`runtime.decision.pipeline.decide_batch`, as `patternrl eval` runs them):", "",
         "- **rule, no filter**: `rule:assign --safety off`, straight to the shared-assignment "
         "slot at v_max (CAPT-style);",
         "- **rule + ORCA(tau)**: `rule:assign --safety orca`, the same slots reached through "

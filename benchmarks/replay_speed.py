@@ -1,7 +1,7 @@
 """Messages per second that ``patternrl replay`` reads and analyses (goal: >= 100 k messages/s).
 
 The log: 10,000 steps of 20 robots (``--steps``, ``--robots``), written through the
-real recorder API (:class:`sim_bridge.recorder.Recorder`) with synthetic motion, so
+real recorder API (:class:`sim_bridge.log.recorder.Recorder`) with synthetic motion, so
 it takes seconds to make instead of a real run's minutes. Per step, as the world
 writes them: every robot's pose and command, one ``/world/metrics`` and one
 ``/world/scene`` (a full ``foxglove.SceneUpdate``); a status per robot every 10
@@ -15,12 +15,12 @@ step limit, 25 phases).
 Rows, each the median of ``--repeats`` runs over the same file:
 
 * ``mcap NonSeekingReader``: mcap's own reader iterating every message (reference);
-* ``log_file.iter_messages``: the replay's reader alone (:mod:`sim_bridge.log_file`);
+* ``log_file.iter_messages``: the replay's reader alone (:mod:`sim_bridge.log.file`);
 * ``read_log``: reading and decoding (poses, commands, events, metrics columns;
-  :mod:`sim_bridge.log_reader`);
+  :mod:`sim_bridge.log.reader`);
 * ``read_log + analyse``: the whole report, every figure recomputed
-  (:mod:`sim_bridge.log_report`), the goal row;
-* ``of which lower bounds``: the part of that spent in ``runtime.formation.lower_bounds``
+  (:mod:`sim_bridge.log.report`), the goal row;
+* ``of which lower bounds``: the part of that spent in ``runtime.decision.formation.lower_bounds``
   (one call per phase, independent of the message count), from the same runs.
 
 ``x mcap`` is each row's speed over mcap's reader in the same run: the figure to
@@ -49,9 +49,10 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime import keys
-from runtime.formation import assign_slots, centred
-from runtime.messages import (
+from runtime.decision.formation import assign_slots, centred
+from runtime.decision.patterns import make_pattern
+from runtime.wire import keys
+from runtime.wire.messages import (
     Command,
     PatternMsg,
     Pose,
@@ -61,13 +62,12 @@ from runtime.messages import (
     encode_pose,
     encode_status,
 )
-from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.log_file import iter_messages
-from sim_bridge.log_reader import read_log
-from sim_bridge.log_report import analyse
-from sim_bridge.recorder import Recorder
-from sim_bridge.scene import scene_update
+from sim_bridge.live.scene import scene_update
+from sim_bridge.log.file import iter_messages
+from sim_bridge.log.reader import read_log
+from sim_bridge.log.recorder import Recorder
+from sim_bridge.log.report import analyse
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 GOAL_MSGS_PER_S = 100_000.0

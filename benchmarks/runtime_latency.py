@@ -10,7 +10,7 @@ Measures, on this machine:
    256-128-128 on the general observation: a brain from ``exports/`` if one
    with the general spec exists, else random weights built here with the
    ``onnx`` helper). The teams are forming a circle from random starts, every
-   robot deciding with its own :class:`runtime.controller.Controller`, so the
+   robot deciding with its own :class:`runtime.decision.controller.Controller`, so the
    filter meets real encounters. Beside each ONNX configuration, onnxruntime
    alone on one row, called after every decision of the same run (so both see
    the same machine). Budget at N = 10: p99 <= 50 us, p50 <= 2x onnxruntime
@@ -44,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runtime.brain import (  # noqa: E402
+from runtime.brain.brain import (  # noqa: E402
     METADATA_KEY,
     RULE_ASSIGN,
     BrainManifest,
@@ -53,11 +53,11 @@ from runtime.brain import (  # noqa: E402
     load_brain,
     validate_brain_bytes,
 )
-from runtime.controller import Controller  # noqa: E402
 from runtime.core import kernel_status  # noqa: E402
-from runtime.observation import ObservationSpec  # noqa: E402
-from runtime.patterns import make_pattern  # noqa: E402
-from runtime.safety import OrcaParams  # noqa: E402
+from runtime.decision.controller import Controller  # noqa: E402
+from runtime.decision.observation import ObservationSpec  # noqa: E402
+from runtime.decision.patterns import make_pattern  # noqa: E402
+from runtime.decision.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 
 W = DEFAULT_WORLD
@@ -251,7 +251,7 @@ def start_and_rss(stub: Any, brain: str, repeats: int) -> dict[str, float]:
 
 def swap_pause(stub: Any, brain_path: Path, n: int, steps: int) -> dict[str, Any]:
     """Lockstep as fast as the team answers; a swap lands mid-run."""
-    from runtime.swap import read_brain, swap_brain
+    from runtime.brain.swap import read_brain, swap_brain
 
     w = stub.StubWorld(f"bswap{int(time.time() * 1000) % 100000}")
     procs = []

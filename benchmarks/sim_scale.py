@@ -3,7 +3,7 @@
 Part 1, world step (pymunk) for N = 10, 50, 100, 500 robots: every robot heads
 straight for its slot of a circle at up to v_max (the rule brain without the
 safety filter, so crossings do produce contacts), decided outside the timed
-region. Timed: :meth:`sim_bridge.physics.PhysicsWorld.step` (velocities in
+region. Timed: :meth:`sim_bridge.world.physics.PhysicsWorld.step` (velocities in
 through ``pymunk.batch``, one space step, positions and contacts out). Side by
 side, in the same run: the same physics driven by a Python loop over bodies
 (set each velocity, step, read each position), the baseline the budget quotes.
@@ -50,16 +50,16 @@ import pymunk.batch as pb
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runtime.formation import (  # noqa: E402 -- after the path set-up above
+from runtime.decision.formation import (  # noqa: E402 -- after the path set-up above
     assign_slots,
     centred,
     collision_pairs,
     min_separation,
     slot_distances,
 )
-from runtime.patterns import make_pattern  # noqa: E402
+from runtime.decision.patterns import make_pattern  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
-from sim_bridge.physics import PhysicsWorld, arena_for_patterns, sample_starts  # noqa: E402
+from sim_bridge.world.physics import PhysicsWorld, arena_for_patterns, sample_starts  # noqa: E402
 
 W = DEFAULT_WORLD
 
@@ -197,10 +197,10 @@ def _cpu_seconds(pid: int) -> float:
 
 def bench_lockstep(n: int, steps: int, seed: int = 0) -> dict[str, Any]:
     """A world in this process, n robot processes, lockstep, until ``steps`` steps ran."""
-    from runtime.zenoh_session import open_session
-    from sim_bridge.brain_choice import rule_choice
-    from sim_bridge.launch import Robots, free_port
-    from sim_bridge.sim_world import SimConfig, SimWorld
+    from runtime.net.session import open_session
+    from sim_bridge.launch.launch import Robots, free_port
+    from sim_bridge.world.brain_choice import rule_choice
+    from sim_bridge.world.sim_world import SimConfig, SimWorld
 
     patterns = ["circle", "line", "cross", "heart"] * 50
     swarm = f"bench-{n}-{os.getpid()}"

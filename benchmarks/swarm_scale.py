@@ -31,7 +31,7 @@ the router's CPU per step. Open TCP on loopback (``--insecure``) throughout, as
 the figures before; the TLS cost is the launcher's.
 
 Part 3, **one decision** (assignment + observation + brain + ORCA, the robot's
-:class:`runtime.controller.Controller`) at N = 10, 50, 100 with the general brain, beside
+:class:`runtime.decision.controller.Controller`) at N = 10, 50, 100 with the general brain, beside
 onnxruntime alone (the same brain's ``act`` on one observation, called after each decision
 of the same run): p50 and p99 in microseconds, with the machine's load average printed
 beside them (run once on an idle machine and once busy to see both).
@@ -59,8 +59,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from sim_scale import _cpu_seconds  # noqa: E402 -- one /proc reader for both benchmarks
 
-from runtime.brain import Brain, load_brain  # noqa: E402 -- after the path set-up above
-from runtime.safety import OrcaParams  # noqa: E402
+from runtime.brain.brain import Brain, load_brain  # noqa: E402 -- after the path set-up above
+from runtime.decision.safety import OrcaParams  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 
 W = DEFAULT_WORLD
@@ -128,10 +128,10 @@ def _pct(a: list[float], q: float) -> float | None:
 def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0,
               topology: str = "auto") -> dict[str, Any]:
     """A world in this process and ``n`` robot processes; one circle (or ``max_steps``)."""
-    from runtime.zenoh_session import open_session
-    from sim_bridge.launch import PEER_MAX_ROBOTS, Robots, free_port
-    from sim_bridge.router import RouterProcess
-    from sim_bridge.sim_world import SimConfig, SimWorld
+    from runtime.net.session import open_session
+    from sim_bridge.launch.launch import PEER_MAX_ROBOTS, Robots, free_port
+    from sim_bridge.launch.router import RouterProcess
+    from sim_bridge.world.sim_world import SimConfig, SimWorld
 
     if topology == "auto":
         topology = "router" if n > PEER_MAX_ROBOTS else "peer"

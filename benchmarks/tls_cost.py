@@ -33,11 +33,11 @@ sys.path.insert(0, str(ROOT))
 
 def one_round(n: int, steps: int, keys_dir: Path | None, swarm: str, seed: int) -> dict[str, Any]:
     """One lockstep run of ``steps`` steps; ``keys_dir`` None: open TCP."""
-    from runtime.identity import load_identity
-    from runtime.zenoh_session import make_config, open_config
-    from sim_bridge.brain_choice import rule_choice
-    from sim_bridge.launch import Robots, free_port
-    from sim_bridge.sim_world import SimConfig, SimWorld
+    from runtime.net.identity import load_identity
+    from runtime.net.session import make_config, open_config
+    from sim_bridge.launch.launch import Robots, free_port
+    from sim_bridge.world.brain_choice import rule_choice
+    from sim_bridge.world.sim_world import SimConfig, SimWorld
 
     patterns = ["circle", "line", "cross", "heart"] * 50
     port = free_port()
@@ -75,7 +75,7 @@ def one_round(n: int, steps: int, keys_dir: Path | None, swarm: str, seed: int) 
 
 
 def main() -> int:
-    from sim_bridge.swarm_keys import create_swarm_keys
+    from sim_bridge.launch.swarm_keys import create_swarm_keys
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--robots", type=int, default=10, help="robot processes (default 10)")

@@ -9,7 +9,7 @@ Rows, all measured in one run, side by side:
   assignments: *former* (scipy's Hungarian per env every step, the observation
   built through the batch entry point) and *compiled* (the world's step: its
   move, assignment and observation compiled at install from their one source,
-  :mod:`trainer.contacts` and :mod:`runtime.core`). Each figure in wall time and
+  :mod:`trainer.world.contacts` and :mod:`runtime.core`). Each figure in wall time and
   in this thread's CPU time (the two differ when other processes share the
   cores).
 * ``train``: agent-steps/s of whole iterations (rollout + update + held-out
@@ -33,7 +33,7 @@ A model of scaling (why the figures look as they do)
     more workers add nothing (the limit is ``E T N / (t_learn + t_comm)``).
     Measured with the defaults (E = 48, T = 32, N = 10: 15,360 agent-steps
     an iteration; cProfile of a 20 s in-process run, load ~5): t_learn
-    (``trainer.update.update``) ~1.3 s, the held-out evaluation ~0.2 s, the
+    (``trainer.ppo.update.update``) ~1.3 s, the held-out evaluation ~0.2 s, the
     rollout ~0.13 s, of which the compiled world ~0.09 s. The learner is
     ~75 % of an iteration and the world ~5 %: training runs at ~9 k
     agent-steps/s however fast the world is, the limit for unlimited workers
@@ -57,13 +57,13 @@ from typing import Any
 
 import numpy as np
 
-from runtime.formation import _sq_cost, assign_slots_batch, keeps_previous
-from runtime.observation import ObservationSpec, observe
+from runtime.decision.formation import _sq_cost, assign_slots_batch, keeps_previous
+from runtime.decision.observation import ObservationSpec, observe
 from runtime.types import Array, F32Array, IntArray
 from trainer.config import TrainConfig
 from trainer.rollout import IN_PROCESS, RolloutMode
 from trainer.train import RunPlan, train
-from trainer.training_world import BatchWorld
+from trainer.world.training_world import BatchWorld
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 SPEC = ObservationSpec("general")

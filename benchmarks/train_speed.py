@@ -239,7 +239,7 @@ def main() -> int:
     p.add_argument("--fig5-seeds", type=int, default=4)
     p.add_argument("--fig5-obs", default="general")
     p.add_argument("--fig5-front-end", default="auto", choices=list(FRONT_END_NAMES),
-                   help="the brain's front end for the Fig. 5 runs (trainer.front_end)")
+                   help="the brain's front end for the Fig. 5 runs (trainer.ppo.front_end)")
     p.add_argument("--jobs", type=int, default=1,
                    help="Fig. 5 runs side by side, one process each (for machines with more "
                         "cores; each run uses one)")

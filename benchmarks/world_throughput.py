@@ -1,4 +1,4 @@
-"""Agent-steps per second of the training world (trainer/training_world.py), with reward
+"""Agent-steps per second of the training world (trainer/world/training_world.py), with reward
 and termination.
 
 DESIGN.md budget: >= 1 M agent-steps/s at E = 64 envs x N = 10 robots. Each row
@@ -10,7 +10,7 @@ when other processes share the machine). Rows:
 * ``obs=general`` builds the general observation every step (what the trainer
   uses); ``obs=none`` skips it (``build_obs=False``): the world's own cost.
 * ``step=compiled``: the world's one step (its move, assignment and observation
-  compiled at install from their one source, :mod:`trainer.contacts` and
+  compiled at install from their one source, :mod:`trainer.world.contacts` and
   :mod:`runtime.core`).
 * ``policy=random``: uniform random velocities in the v_max disc, like an
   untrained policy. ``policy=to-slot``: full speed straight at the slot, with
@@ -37,10 +37,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from runtime.formation import assign_slots_batch
-from runtime.observation import ObservationSpec
+from runtime.decision.formation import assign_slots_batch
+from runtime.decision.observation import ObservationSpec
 from runtime.types import Array
-from trainer.training_world import BatchWorld
+from trainer.world.training_world import BatchWorld
 
 PATTERNS = ("circle", "line", "cross", "heart", "triangle")
 

@@ -18,18 +18,30 @@ DIST_NAME = "pattern-rl"
 
 # command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "patterns": ("sim_bridge.cli_patterns", "list built-in patterns, or draw one to check it"),
-    "robot": ("runtime.robot", "run one robot: observe peers over Zenoh, act with a brain"),
-    "swap": ("runtime.swap", "hot-swap the brain of running robots"),
+    "patterns": (
+        "sim_bridge.launch.cli_patterns",
+        "list built-in patterns, or draw one to check it",
+    ),
+    "robot": ("runtime.robot.robot", "run one robot: observe peers over Zenoh, act with a brain"),
+    "swap": ("runtime.brain.swap", "hot-swap the brain of running robots"),
     "train": ("trainer.cli", "train a brain with Pattern-RL (or standard PPO) and export ONNX"),
     "eval": ("trainer.evaluate", "measure a brain: success, collisions, steps and travel ratios"),
-    "sim": ("sim_bridge.sim", "play the pymunk world over Zenoh, recording an MCAP log"),
-    "launch": ("sim_bridge.launch", "start a world and one robot process per robot: the demo"),
-    "replay": ("sim_bridge.replay", "report, draw, play back or re-run an MCAP log"),
-    "keys": ("sim_bridge.swarm_keys", "create a swarm's certificate authority and identities"),
-    "brain": ("runtime.brain_cli", "make a signing key, sign a brain, verify its signature"),
-    "router": ("sim_bridge.router", "run the swarm's Zenoh router: every member its client"),
-    "record": ("sim_bridge.record", "record a running swarm (simulated or real) into an MCAP log"),
+    "sim": ("sim_bridge.world.sim", "play the pymunk world over Zenoh, recording an MCAP log"),
+    "launch": (
+        "sim_bridge.launch.launch",
+        "start a world and one robot process per robot: the demo",
+    ),
+    "replay": ("sim_bridge.log.replay", "report, draw, play back or re-run an MCAP log"),
+    "keys": (
+        "sim_bridge.launch.swarm_keys",
+        "create a swarm's certificate authority and identities",
+    ),
+    "brain": ("runtime.brain.cli", "make a signing key, sign a brain, verify its signature"),
+    "router": ("sim_bridge.launch.router", "run the swarm's Zenoh router: every member its client"),
+    "record": (
+        "sim_bridge.log.record",
+        "record a running swarm (simulated or real) into an MCAP log",
+    ),
 }
 
 

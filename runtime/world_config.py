@@ -48,3 +48,8 @@ class WorldConfig:
 
 
 DEFAULT_WORLD = WorldConfig()
+
+MAX_PATTERN_COORD_M = 1e4
+"""A pattern point farther than this from the origin (metres, either axis) is refused:
+the arena is tens of metres wide, and coordinates near the float range overflow
+distances into inf and NaN."""

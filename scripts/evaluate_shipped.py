@@ -18,8 +18,8 @@ import json
 import sys
 from pathlib import Path
 
-from runtime.brain import load_brain, sidecar_path
-from runtime.brain_cli import sign_brain_file
+from runtime.brain.brain import load_brain, sidecar_path
+from runtime.brain.cli import sign_brain_file
 from runtime.errors import InputError
 from trainer.evaluate import manifest_evaluation
 

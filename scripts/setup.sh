@@ -5,8 +5,8 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 # the stamp covers what the install builds from: a changed kernel is rebuilt
-stamp=".venv/.installed-$(cat pyproject.toml constraints.txt setup.py runtime/core/*.py trainer/contacts.py \
-    | sha256sum | cut -c1-16)"
+stamp=".venv/.installed-$(cat pyproject.toml constraints.txt setup.py runtime/core/*.py \
+    trainer/world/contacts.py | sha256sum | cut -c1-16)"
 # the compiled decision (runtime/core, Cython at install) needs a C compiler; without one the
 # install goes on and the robots decide in Python (the same numbers, slower)
 if [ ! -f "$stamp" ] && ! command -v cc >/dev/null && [ "$(id -u)" -eq 0 ] \

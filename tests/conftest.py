@@ -21,6 +21,6 @@ if "PATTERNRL_HOME" not in os.environ:
     import tempfile
 
     os.environ["PATTERNRL_HOME"] = tempfile.mkdtemp(prefix="patternrl-home-")
-    from runtime.signing import user_key
+    from runtime.brain.signing import user_key
 
     user_key(create=True)  # before any robot starts: robots read the keys they trust once

@@ -47,7 +47,7 @@ class Seen:
     """Everything a Zenoh session receives on a swarm's keys, and the liveliness tokens it sees."""
 
     def __init__(self, s: Any, swarm: str) -> None:
-        from runtime import keys
+        from runtime.wire import keys
 
         self.lock = threading.Lock()
         self.samples: list[tuple[str, bytes]] = []
@@ -101,14 +101,14 @@ def assert_same_episodes(brain: Any, rule: Any, safety: Any) -> float:
 
 def forged_command(robot_id: int, step: int, brain: str = "forged") -> bytes:
     """A well-formed command payload of robot ``robot_id`` (the attacks' forgeries and fences)."""
-    from runtime.messages import Command, encode_command
+    from runtime.wire.messages import Command, encode_command
 
     return encode_command(Command(robot_id, step, 1.0, 0.0, brain, False, 0.0, 0.0))
 
 
 def forged_keys(swarm: str) -> tuple[str, ...]:
     """What robot 1 has no right to publish: robot 2's keys, the brain and the pattern."""
-    from runtime import keys
+    from runtime.wire import keys
 
     return (keys.cmd_key(swarm, 2), keys.status_key(swarm, 2), keys.pose_key(swarm, 2),
             keys.brain_key(swarm), keys.pattern_key(swarm))
@@ -122,7 +122,7 @@ def forge_and_fence(attacker: Any, seen: Seen, swarm: str, token_ids: tuple[int,
     Messages of one link arrive in order, so once ``seen`` has the fence it has had every
     forgery that was ever going to arrive. Returns the tokens (keep them alive).
     """
-    from runtime import keys
+    from runtime.wire import keys
 
     for step in range(3):
         for key in forged_keys(swarm):

@@ -27,12 +27,12 @@ from typing import Any
 
 import torch
 
+from runtime.decision.observation import ObservationSpec
 from runtime.errors import InputError
-from runtime.observation import ObservationSpec
 from trainer.config import TrainConfig, obs_spec_for
-from trainer.export import BrainFileError, agent_from_onnx, read_manifest
-from trainer.networks import Agent
-from trainer.update import Optimisers, make_optimisers
+from trainer.ppo.export import BrainFileError, agent_from_onnx, read_manifest
+from trainer.ppo.networks import Agent
+from trainer.ppo.update import Optimisers, make_optimisers
 
 VALUE_WARMUP_ITERATIONS = 3
 """Iterations that train only the value network after ``--init`` from a brain."""

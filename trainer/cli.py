@@ -23,10 +23,10 @@ import json
 import sys
 from pathlib import Path
 
-from runtime.brain import BrainError, BrainManifest, load_brain
+from runtime.brain.brain import BrainError, BrainManifest, load_brain
+from runtime.brain.signing import load_private_key, user_key
+from runtime.decision.patterns import PatternError
 from runtime.errors import InputError
-from runtime.patterns import PatternError
-from runtime.signing import load_private_key, user_key
 from runtime.world_config import DEFAULT_WORLD
 from trainer.checkpoints import InitError, load_checkpoint
 from trainer.config import (
@@ -42,11 +42,11 @@ from trainer.config import (
 )
 from trainer.curve import TensorBoardCurve
 from trainer.evaluate import manifest_evaluation
-from trainer.export import write_brain
-from trainer.reward import PAPER_REWARD
+from trainer.ppo.export import write_brain
 from trainer.rollout import RolloutMode, env_shares
 from trainer.train import RunPlan, TrainResult, artefact_paths, train
-from trainer.training_world import check_pattern
+from trainer.world.reward import PAPER_REWARD
+from trainer.world.training_world import check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0
 

@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal, get_type_hints
 
+from runtime.decision.observation import ObservationSpec
 from runtime.errors import InputError
-from runtime.observation import ObservationSpec
-from trainer.reward import RewardConfig
+from trainer.world.reward import RewardConfig
 
 Algo = Literal["pattern-rl", "ppo"]
 ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")
@@ -54,27 +54,27 @@ class TrainConfig:
     """``pattern-rl`` (auto-encoder + adaptive-KL penalty) or ``ppo`` (clipped, no auto-encoder)."""
     obs: str = "general"
     """Observation spec name: ``paper``, ``general`` or ``plan`` (the general layout in the
-    synchronised plan's frame, with the plan's step: runtime.observation)."""
+    synchronised plan's frame, with the plan's step: runtime.decision.observation)."""
     k_neighbours: int = 6
     """``general`` observation: neighbours seen."""
     residual: bool = False
     """``general`` and ``plan``: the action is a rule's velocity plus the policy's
-    (:class:`trainer.networks.Agent`), so a brain starts at the rule: ``rule:assign`` on the
+    (:class:`trainer.ppo.networks.Agent`), so a brain starts at the rule: ``rule:assign`` on the
     general observation, the plan's step (``rule:frame`` at ``travel_weight``) on the plan's."""
     travel_weight: float = 0.0
     """``plan`` only: where the plan's frame sits, 0 the frame of fewest steps (``rule:frame``),
     1 the team's centroid (``rule:frame-travel``); written into the brain's observation spec."""
     train_safety: bool = False
-    """Train behind the robots' ORCA safety filter (runtime.safety, its defaults): the worlds
-    move each robot by the filtered command, as ``eval``, the world and the robots do, so a
-    brain learns what the filter will make of its commands."""
+    """Train behind the robots' ORCA safety filter (runtime.decision.safety, its
+    defaults): the worlds move each robot by the filtered command, as ``eval``, the world and
+    the robots do, so a brain learns what the filter will make of its commands."""
     front_end: str = "auto"
-    """The paper brain's fixed front end before the normaliser (trainer.front_end), read from
+    """The paper brain's fixed front end before the normaliser (trainer.ppo.front_end), read from
     the paper observation alone: ``transport`` (the team matched to its pattern by optimal
     transport, the robot's slot vector in front: the one that learns, see
     docs/paper_observation.md); ``rank`` (the robot's rank along the team axis, one-hot: the
     brain learns the slot table) and ``slots`` (the rank matching's slot vector), both with the
-    per-robot progress toward the rank matching's slot (trainer.rank); ``none``: the
+    per-robot progress toward the rank matching's slot (trainer.ppo.rank); ``none``: the
     observation as it is; ``auto``: ``transport`` for the paper observation, else ``none``."""
     n_robots: int = 10
     seed: int = 0
@@ -146,7 +146,7 @@ class TrainConfig:
     """torch threads. The world steps in the same thread; on a busy 2-core machine a second
     torch thread made the update 7x slower (oversubscription), so 1 is the default."""
 
-    # ---- reward (trainer.training_world.RewardConfig fields); None keeps the world's default
+    # ---- reward (trainer.world.training_world.RewardConfig fields); None keeps the world's default
     reward: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -395,8 +395,11 @@ def config_toml(cfg: TrainConfig) -> str:
     lines = ["# patternrl train --config FILE.toml (every key optional; see trainer/config.py)"]
     d = cfg.to_dict()
     lines += [f"{k} = {_toml_value(v)}" for k, v in d.items() if k != "reward"]
-    lines += ["", "# the world's reward constants (trainer/reward.py); '#' lines are the defaults",
-              "[reward]"]
+    lines += [
+        "",
+        "# the world's reward constants (trainer/world/reward.py); '#' lines are the defaults",
+        "[reward]",
+    ]
     for k, default in asdict(RewardConfig()).items():
         if k in cfg.reward:
             lines.append(f"{k} = {_toml_value(float(cfg.reward[k]))}")

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from runtime.errors import InputError
-from trainer.update import UpdateStats
+from trainer.ppo.update import UpdateStats
 
 CURVE_FIELDS = (
     "iteration",

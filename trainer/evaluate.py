@@ -1,12 +1,12 @@
 """``patternrl eval``: how good a brain is, in numbers.
 
-The brain runs exactly as on a robot: :func:`runtime.brain.load_brain` loads
+The brain runs exactly as on a robot: :func:`runtime.brain.brain.load_brain` loads
 it (onnxruntime, the manifest's observation spec, validation), and
-:func:`runtime.decision.decide_batch` makes every decision with the robot's
+:func:`runtime.decision.pipeline.decide_batch` makes every decision with the robot's
 own pipeline (shared slot assignment with hysteresis, the same observation
 builder, deterministic action = the policy mean, clamp to v_max, the ORCA
 safety filter unless ``--safety off``). The world is the training world
-(:class:`trainer.training_world.BatchWorld`) with lower bounds computed per episode.
+(:class:`trainer.world.training_world.BatchWorld`) with lower bounds computed per episode.
 Episode ``e`` is the first episode of env ``e`` of a world seeded with
 ``--seed``: the same seed gives the same starts, whatever the brain.
 
@@ -44,13 +44,13 @@ from typing import Any
 
 import numpy as np
 
-from runtime.brain import Brain, BrainError, load_brain
-from runtime.decision import decide_batch
-from runtime.formation import min_swept_separation
-from runtime.patterns import PatternError, pattern_label
-from runtime.safety import OrcaParams
+from runtime.brain.brain import Brain, BrainError, load_brain
+from runtime.decision.formation import min_swept_separation
+from runtime.decision.patterns import PatternError, pattern_label
+from runtime.decision.pipeline import decide_batch
+from runtime.decision.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
-from trainer.training_world import BatchWorld, check_pattern
+from trainer.world.training_world import BatchWorld, check_pattern
 
 DEFAULT_EVAL_SEED = 1_000_000
 """Training uses ``--seed`` (default 0) and selects checkpoints on ``seed + 1_000_003``."""

@@ -1,10 +1,10 @@
 """Rollouts on Ray actors (``patternrl train --ray [ADDRESS] --ray-workers K``).
 
 Imported only when a run asks for Ray (the ``distributed`` extra). Each of the
-K actors holds its own :class:`~trainer.training_world.BatchWorld` with a
+K actors holds its own :class:`~trainer.world.training_world.BatchWorld` with a
 share of the run's envs (:func:`trainer.rollout.env_shares`); per iteration
 the driver puts the agent in the object store once, every actor plays
-``rollout_steps`` steps of its envs with :func:`trainer.train.collect_rollout`
+``rollout_steps`` steps of its envs with :func:`trainer.rollout.collect_rollout`
 (the very function the in-process source calls) and returns its samples, and
 the driver joins them and runs the update. Seeds and noise: see
 :mod:`trainer.rollout`.
@@ -28,10 +28,16 @@ import torch
 from runtime.errors import InputError
 from runtime.world_config import WorldConfig
 from trainer.config import TrainConfig
-from trainer.networks import Agent
-from trainer.rollout import RolloutMode, env_shares, stage_world, worker_generator
-from trainer.storage import RolloutBatch
-from trainer.train import RolloutResult, collect_rollout
+from trainer.ppo.networks import Agent
+from trainer.ppo.storage import RolloutBatch
+from trainer.rollout import (
+    RolloutMode,
+    RolloutResult,
+    collect_rollout,
+    env_shares,
+    stage_world,
+    worker_generator,
+)
 
 LOCAL_OBJECT_STORE_BYTES = 256 * 1024 * 1024
 """A local instance's object store: an iteration's samples are a few MB."""

@@ -7,7 +7,7 @@ One iteration (Algorithm 1, one pass of its outer loop)
        Worlds that finish an episode start the next one at once; a truncated
        episode (step limit) is bootstrapped with V of its last observation.
     2. The observation normaliser folds in the new observations.
-    3. :func:`trainer.update.update` (lines 5-23).
+    3. :func:`trainer.ppo.update.update` (lines 5-23).
     4. Every ``eval_every`` iterations, a **held-out evaluation**: the
        deterministic policy (the mean, as the exported brain acts) on
        ``eval_episodes`` starts drawn from a seed stream training never uses
@@ -50,11 +50,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from runtime.decision import commands
+from runtime.decision.patterns import make_pattern, pattern_label
 from runtime.errors import InputError
-from runtime.patterns import make_pattern, pattern_label
-from runtime.safety import OrcaParams
-from runtime.types import Array, F32Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.checkpoints import (
     TrainState,
@@ -67,14 +64,20 @@ from trainer.checkpoints import (
 )
 from trainer.config import TrainConfig, obs_spec_for, reward_for
 from trainer.curve import ProgressBar, curve_row, plot_curve, write_curve
-from trainer.networks import Agent, gaussian_logprob
-from trainer.rollout import IN_PROCESS, RESUME_SEED_STRIDE, RolloutMode, RolloutSource, stage_world
-from trainer.storage import Rollout, RolloutBatch
-from trainer.training_world import BatchWorld, check_pattern
-from trainer.update import UpdateStats, update
+from trainer.ppo.networks import Agent
+from trainer.ppo.storage import RolloutBatch
+from trainer.ppo.update import UpdateStats, update
+from trainer.rollout import (
+    IN_PROCESS,
+    RESUME_SEED_STRIDE,
+    InProcessRollouts,
+    RolloutMode,
+    RolloutSource,
+    behind_filter,
+)
+from trainer.world.training_world import BatchWorld, check_pattern
 
-__all__ = ["RESUME_SEED_STRIDE", "RolloutResult", "RunPlan", "TrainResult", "collect_rollout",
-           "train"]
+__all__ = ["RESUME_SEED_STRIDE", "RunPlan", "TrainResult", "train"]
 RECENT_EPISODES_PER_ENV = 4
 """The curve's training reward and success average the last this-many x n_envs episodes."""
 
@@ -196,89 +199,7 @@ def evaluate_policy(
     )
 
 
-def behind_filter(vel: Array, bw: BatchWorld) -> Array:
-    """The robots' safety filter between the brain and the world (``cfg.train_safety``):
-    :func:`runtime.decision.commands` with its defaults, the landing horizon of a plan
-    observation's team included, as ``eval`` and the robots run it."""
-    steps_left = bw.plan_steps_left if bw.obs_spec.name == "plan" else None  # as observed
-    out: Array = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world,
-                          steps_left)[0]
-    return out
-
-
-# ------------------------------------------------------------------- rollout
-
-
-class RolloutResult(NamedTuple):
-    """What one rollout gathered."""
-
-    batch: RolloutBatch
-    obs: F32Array
-    """The observation after the rollout, (E, N, D): where the next one starts."""
-    returns: list[float]
-    """Return of every episode that ended during the rollout."""
-    success: list[bool]
-    """Whether each of those formed with no collision."""
-
-
-def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfig,
-                    gen: torch.Generator, v_max_mps: float) -> RolloutResult:
-    """Algorithm 1, *play game and update memory*: ``rollout_steps`` steps of every robot.
-
-    Actions are sampled from the Gaussian (noise from ``gen``); worlds that finish
-    an episode start the next at once; a time-limit cut is bootstrapped with
-    V of the episode's last observation.
-    """
-    E, N, T = cfg.n_envs, cfg.n_robots, cfg.rollout_steps
-    mem = Rollout(T, E, N, agent.feature_dim)  # holds what the normaliser reads
-    returns: list[float] = []
-    success: list[bool] = []
-    with torch.no_grad():
-        for _ in range(T):
-            front = agent.front_features(torch.from_numpy(obs.reshape(E * N, -1)), N)
-            e = agent.encoder(agent.normaliser(front))
-            mean, std = agent.policy(e)
-            value = agent.value(e)
-            a = mean + std * torch.randn(mean.shape, generator=gen)
-            logp = gaussian_logprob(a, mean, std)
-            base = agent.base_mps(torch.from_numpy(obs.reshape(E * N, -1)))  # 0 unless residual
-            vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
-            res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
-            reward = res.reward.copy()
-            ep = res.episode
-            if ep is not None:
-                trunc = res.truncated[ep.env_ids]
-                if trunc.any():  # bootstrap a time-limit cut with V(last obs)
-                    last = torch.from_numpy(ep.final_obs[trunc].reshape(-1, bw.obs_dim))
-                    v_last = agent.value(agent.features(last, N)).numpy()
-                    reward[ep.env_ids[trunc]] += cfg.gamma * v_last.reshape(-1, N)
-                returns += ep.episode_return.tolist()
-                success += (ep.formed & (ep.collisions == 0)).tolist()
-            mem.add(front.numpy().reshape(E, N, -1), a.numpy().reshape(E, N, 2),
-                    mean.numpy().reshape(E, N, 2), std.numpy().reshape(E, N, 2),
-                    logp.numpy().reshape(E, N), value.numpy().reshape(E, N), reward, res.done)
-            obs = res.obs
-        o_t = torch.from_numpy(obs.reshape(E * N, -1))
-        last_values = agent.value(agent.features(o_t, N)).numpy().reshape(E, N)
-    batch = mem.batch(last_values, cfg.gamma, cfg.returns, cfg.gae_lambda)
-    return RolloutResult(batch, obs, returns, success)
-
-
-class InProcessRollouts:
-    """The stage's worlds in this process: :func:`collect_rollout` on one ``BatchWorld``."""
-
-    def __init__(self, cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int
-                 ) -> None:
-        self.cfg, self.v_max_mps = cfg, world.v_max_mps
-        self.bw, self.obs = stage_world(cfg, world, pattern, it, stage)
-
-    def collect(self, agent: Agent, gen: torch.Generator) -> RolloutResult:
-        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps)
-        self.obs = ro.obs
-        return ro
-
-    def close(self) -> None:
-        pass
+# ------------------------------------------------------------------- rollouts
 
 
 def rollout_source(cfg: TrainConfig, plan: RunPlan, pattern: str, it: int, stage: int

@@ -6,12 +6,12 @@ Every robot computes the same assignment of robots to pattern slots from the sam
 poses: centre the team and the pattern, ``cost[i, j]`` = squared distance (m^2) of
 centred robot i to centred slot j (:func:`team_cost`), a minimum-cost assignment
 (what ``scipy.optimize.linear_sum_assignment`` returns, ties included), and the
-hysteresis rule (:func:`runtime.formation.keeps_previous`): the previous assignment
+hysteresis rule (:func:`runtime.decision.formation.keeps_previous`): the previous assignment
 is kept unless the new one's summed cost is lower by more than
 ``HYSTERESIS_REL * old + HYSTERESIS_ABS_M2``. The robot calls :func:`assign_team`
 for its team (through :class:`TeamAssignment`, which keeps its state), the training
 world :func:`assign_teams` for a batch of teams, and
-:mod:`runtime.formation` :func:`assign_costs` for costs it built itself; all three
+:mod:`runtime.decision.formation` :func:`assign_costs` for costs it built itself; all three
 run the same per-team code.
 
 The solver
@@ -377,7 +377,7 @@ def _assign_one(
             if col4row[i] != prev[i]:
                 same = False
                 break
-        if not same:  # the hysteresis rule (runtime.formation.keeps_previous)
+        if not same:  # the hysteresis rule (runtime.decision.formation.keeps_previous)
             new = _sum_taken(cost, col4row, spc)
             old = _sum_taken(cost, prev, spc)
             if not (new < old - (_REL * old + _ABS)):

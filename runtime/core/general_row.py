@@ -1,7 +1,7 @@
 # cython: boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """The general (and plan) observation row: written once, for one robot or E teams.
 
-Layout per robot, dim = 6 + 5k (the ``general`` spec of :mod:`runtime.observation`)::
+Layout per robot, dim = 6 + 5k (the ``general`` spec of :mod:`runtime.decision.observation`)::
 
     0:2   slot vector: own slot minus own position (m)
     2:4   slot vector / max(|slot vector|, v_max dt): the straight-line step, at most

@@ -13,7 +13,7 @@ margin for an uncertain view, a wheel's limits, an obstacle) is a new loop in
 :class:`OrcaFilter` holds the filter's settings and its scratch; :meth:`OrcaFilter.robot`
 filters one robot's velocity (the robot's own step), :meth:`OrcaFilter.teams` every
 robot of E teams (``eval``, the training world), calling the same code. The tuning
-and its reasons live in :mod:`runtime.safety` (``OrcaParams``).
+and its reasons live in :mod:`runtime.decision.safety` (``OrcaParams``).
 
 Plain Python in Cython's pure-Python mode (see :mod:`runtime.core`). Units: m, s, m/s.
 """

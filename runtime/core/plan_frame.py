@@ -4,7 +4,7 @@
 
 One team of n robots, robot j at ``p_j`` heading for its pattern point ``q_j``
 (the shared assignment's slot, at any translation of the pattern). With the
-displacements ``d_j = p_j - q_j`` the plan's frame is (:mod:`runtime.rules`)::
+displacements ``d_j = p_j - q_j`` the plan's frame is (:mod:`runtime.decision.rules`)::
 
     c = centre of the smallest circle enclosing the d_j        (Welzl)
     t = c + travel_weight * (mean_j d_j - c)                   (t = mean_j d_j from weight 1)
@@ -13,8 +13,8 @@ displacements ``d_j = p_j - q_j`` the plan's frame is (:mod:`runtime.rules`)::
 and robot j's slot is ``q_j + t``. :func:`plan_frame` solves one team for a
 robot, keeping the last step's support (the two or three displacements on the
 circle) from call to call; :func:`plan_frames` solves E teams afresh, for the
-batch paths (:func:`runtime.rules.plan_targets`); :func:`min_enclosing_circle`
-is the circle alone (also the lower bounds' in :mod:`runtime.formation`).
+batch paths (:func:`runtime.decision.rules.plan_targets`); :func:`min_enclosing_circle`
+is the circle alone (also the lower bounds' in :mod:`runtime.decision.formation`).
 
 The file runs as Python and compiled (Cython's pure-Python mode, ``setup.py``).
 Arrays are read through the buffer protocol as flat C-contiguous float64 (int64

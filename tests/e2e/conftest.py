@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 import zenoh
 
-from runtime import keys
-from runtime.brain import RuleBrain
-from runtime.controller import Controller
-from runtime.messages import (
+from runtime.brain.brain import RuleBrain
+from runtime.decision.controller import Controller
+from runtime.net.session import open_session
+from runtime.wire import keys
+from runtime.wire.messages import (
     Command,
     MessageError,
     PatternMsg,
@@ -32,7 +33,6 @@ from runtime.messages import (
     decode_pose,
     encode_command,
 )
-from runtime.zenoh_session import open_session
 
 ROOT = Path(__file__).resolve().parents[2]
 OPEN_COMMANDS = ("sim", "robot", "swap")
@@ -248,8 +248,8 @@ def write_test_brain(directory: Path, name: str, obs: str = "general", pattern: 
 
     from onnx import TensorProto, helper, numpy_helper
 
-    from runtime.brain import METADATA_KEY, BrainManifest
-    from runtime.observation import ObservationSpec
+    from runtime.brain.brain import METADATA_KEY, BrainManifest
+    from runtime.decision.observation import ObservationSpec
 
     spec = ObservationSpec(obs, n_robots=n_robots or 0) if obs == "paper" else ObservationSpec(obs)
     rng = np.random.default_rng(seed)
@@ -271,7 +271,7 @@ def write_test_brain(directory: Path, name: str, obs: str = "general", pattern: 
     path.write_bytes(data)
     manifest.brain_id = hashlib.sha256(data).hexdigest()
     if sign:  # by the test run's own key (PATTERNRL_HOME), which its robots trust
-        from runtime.signing import load_private_key, sign_manifest, user_key
+        from runtime.brain.signing import load_private_key, sign_manifest, user_key
 
         key = load_private_key(user_key() or "")
         manifest.signature = sign_manifest(manifest.to_dict(), manifest.brain_id, key)

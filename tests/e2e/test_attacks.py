@@ -22,8 +22,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from runtime import keys
-from runtime.messages import (
+from runtime.decision.patterns import make_pattern
+from runtime.net.session import open_session
+from runtime.wire import keys
+from runtime.wire.messages import (
     VERSION,
     BrainMsg,
     Command,
@@ -36,9 +38,7 @@ from runtime.messages import (
     encode_command,
     encode_pattern,
 )
-from runtime.patterns import make_pattern
-from runtime.zenoh_session import open_session
-from sim_bridge.log_reader import read_log
+from sim_bridge.log.reader import read_log
 
 pytestmark = pytest.mark.timeout(180)
 N = 4

@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from runtime.formation import assign_slots, collision_pairs, min_separation, slot_distances
+from runtime.decision.formation import assign_slots, collision_pairs, min_separation, slot_distances
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.log_reader import LogData, read_log
+from sim_bridge.log.reader import LogData, read_log
 
 W = DEFAULT_WORLD
 ROBOTS = 4

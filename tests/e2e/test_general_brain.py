@@ -6,7 +6,7 @@
 a pattern file written here (a block arrow: a closed polygon with corners, which
 the training shapes, smooth closed curves, open polylines and scattered points,
 are not). The verdict comes from the MCAP log alone
-(:func:`sim_bridge.log_report.report_log` recomputes every figure from the poses):
+(:func:`sim_bridge.log.report.report_log` recomputes every figure from the poses):
 formed, no collision, every command from the general brain.
 
 The brain is a shipped file: when it is missing the test fails (it does not
@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from runtime.brain import RULE_ASSIGN, load_brain
+from runtime.brain.brain import RULE_ASSIGN, load_brain
 from runtime.world_config import DEFAULT_WORLD
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -45,8 +45,8 @@ def shipped_general_brain() -> Path:
 @pytest.mark.timeout(120)
 def test_general_brain_forms_an_unseen_shape_over_zenoh(procs: Any, tmp_path: Path,
                                                         kit: Any) -> None:
-    from runtime.patterns import make_pattern
-    from sim_bridge.log_report import report_log
+    from runtime.decision.patterns import make_pattern
+    from sim_bridge.log.report import report_log
 
     brain_path = shipped_general_brain()
     brain = load_brain(str(brain_path))
@@ -84,7 +84,7 @@ def test_general_brain_forms_an_unseen_shape_over_zenoh(procs: Any, tmp_path: Pa
 def test_launcher_runs_the_general_brain_by_default(tmp_path: Path, kit: Any,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     from runtime.errors import InputError
-    from sim_bridge.brain_choice import GENERAL_BRAIN, pick_brains
+    from sim_bridge.world.brain_choice import GENERAL_BRAIN, pick_brains
 
     ex = tmp_path / "exports"
     ex.mkdir()

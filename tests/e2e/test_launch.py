@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from runtime.formation import assign_slots, formation_error, slot_distances
+from runtime.decision.formation import assign_slots, formation_error, slot_distances
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.log_reader import LogData, read_log
+from sim_bridge.log.reader import LogData, read_log
 
 TOL = DEFAULT_WORLD.formed_tol_m
 pytestmark = pytest.mark.timeout(120)
@@ -195,7 +195,7 @@ def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -
 
 
 def test_brains_are_chosen_by_manifest(tmp_path: Path, kit: Any) -> None:
-    from sim_bridge.brain_choice import choose_brains
+    from sim_bridge.world.brain_choice import choose_brains
 
     for name, obs, pattern, n in [("circle-10-paper", "paper", "circle", 10),
                                   ("line-10-paper", "paper", "line", 10),

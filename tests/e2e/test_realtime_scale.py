@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.log_reader import LogData, read_log
+from sim_bridge.log.reader import LogData, read_log
 
 pytestmark = pytest.mark.timeout(240)
 W = DEFAULT_WORLD

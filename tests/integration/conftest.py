@@ -27,8 +27,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from runtime import keys
-from runtime.messages import (
+from runtime.decision.patterns import make_pattern
+from runtime.net.session import PORT_ENV, open_session
+from runtime.wire import keys
+from runtime.wire.messages import (
     Command,
     MessageError,
     PatternMsg,
@@ -41,9 +43,7 @@ from runtime.messages import (
     encode_pose,
     encode_poses,
 )
-from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
-from runtime.zenoh_session import PORT_ENV, open_session
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -306,8 +306,8 @@ def write_test_brain(
 
     from onnx import TensorProto, helper, numpy_helper
 
-    from runtime.brain import METADATA_KEY, BrainManifest
-    from runtime.observation import ObservationSpec
+    from runtime.brain.brain import METADATA_KEY, BrainManifest
+    from runtime.decision.observation import ObservationSpec
 
     spec = ObservationSpec("general")
     d = spec.dim if in_dim is None else in_dim
@@ -356,7 +356,7 @@ def write_test_brain(
     path.write_bytes(data)
     manifest.brain_id = hashlib.sha256(data).hexdigest()
     if sign_key is not False:
-        from runtime.signing import load_private_key, sign_manifest, user_key
+        from runtime.brain.signing import load_private_key, sign_manifest, user_key
 
         key = load_private_key(user_key() or "" if sign_key is True else sign_key)
         manifest.signature = sign_manifest(manifest.to_dict(), manifest.brain_id, key)

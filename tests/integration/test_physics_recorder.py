@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from runtime import messages as wire
+from runtime.wire import messages as wire
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge import log_schemas
-from sim_bridge.log_file import iter_messages
-from sim_bridge.log_layout import EVENTS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
-from sim_bridge.log_reader import read_log
-from sim_bridge.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
-from sim_bridge.recorder import Recorder
-from sim_bridge.scene import scene_update
+from sim_bridge.live.scene import scene_update
+from sim_bridge.log import schemas as pb
+from sim_bridge.log.file import iter_messages
+from sim_bridge.log.layout import EVENTS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
+from sim_bridge.log.reader import read_log
+from sim_bridge.log.recorder import Recorder
+from sim_bridge.world.physics import PhysicsError, PhysicsWorld, arena_for_patterns, sample_starts
 
 R = DEFAULT_WORLD.radius_m
 ROOT = Path(__file__).resolve().parents[2]
@@ -130,7 +130,7 @@ def test_seeded_starts_are_separated_inside_and_reproducible() -> None:
 
 
 def test_arena_grows_for_large_patterns() -> None:
-    from runtime.patterns import make_pattern
+    from runtime.decision.patterns import make_pattern
 
     assert arena_for_patterns([make_pattern("circle", 10)]) == DEFAULT_WORLD.arena_m
     big = make_pattern("circle", 500)
@@ -201,7 +201,7 @@ def test_recorder_round_trip(tmp_path: Path, old: bool) -> None:
     else:  # a foreign key's sample is kept whole on /log/other
         assert data.topics["/log/other"] == 1
         raw = [p for c, _, _, _, p in iter_messages(path) if c.topic == "/log/other"]
-        sample = log_schemas.parse(log_schemas.RAW_SAMPLE, raw[0])
+        sample = pb.parse(pb.RAW_SAMPLE, raw[0])
         assert (sample.key, sample.payload, sample.reason) == (other, b"\x00raw", "")
     ids, xy = fr.at(7)
     assert ids.tolist() == [2] and xy.tolist() == [[pose.x, pose.y]]
@@ -221,9 +221,9 @@ _WRITER = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from runtime import messages as wire
-    from sim_bridge.recorder import Recorder
-    from sim_bridge.scene import scene_update
+    from runtime.wire import messages as wire
+    from sim_bridge.log.recorder import Recorder
+    from sim_bridge.live.scene import scene_update
     rec = Recorder(sys.argv[1], chunk_size=4096, flush_period_s=0.05)
     step = 0
     while True:

@@ -25,11 +25,11 @@ from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
 from patternrl.cli import main as cli
-from sim_bridge import log_schemas as pb
-from sim_bridge.foxglove_client import FoxgloveClient
-from sim_bridge.log_file import iter_messages
-from sim_bridge.log_report import report_log
-from sim_bridge.swarm_keys import create_swarm_keys
+from sim_bridge.launch.swarm_keys import create_swarm_keys
+from sim_bridge.live.foxglove_client import FoxgloveClient
+from sim_bridge.log import schemas as pb
+from sim_bridge.log.file import iter_messages
+from sim_bridge.log.report import report_log
 
 pytestmark = pytest.mark.timeout(180)
 PY = sys.executable

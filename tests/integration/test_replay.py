@@ -37,9 +37,11 @@ import zenoh
 from conftest import ROOT, free_port, wait_for, write_test_brain
 
 from patternrl.cli import main as cli
-from runtime import keys
-from runtime.formation import lower_bounds
-from runtime.messages import (
+from runtime.decision.formation import lower_bounds
+from runtime.decision.patterns import make_pattern
+from runtime.net.session import open_session
+from runtime.wire import keys
+from runtime.wire.messages import (
     Command,
     PatternMsg,
     Pose,
@@ -47,17 +49,15 @@ from runtime.messages import (
     encode_pattern,
     encode_pose,
 )
-from runtime.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
-from runtime.zenoh_session import open_session
-from sim_bridge import log_schemas as pb
-from sim_bridge.counterfactual import counterfactual
-from sim_bridge.log_file import Recovery, iter_messages, repair
-from sim_bridge.log_layout import WIRE_ENCODING, channel_kind
-from sim_bridge.log_reader import read_log
-from sim_bridge.log_report import report_log
-from sim_bridge.plots import phase_tracks
-from sim_bridge.recorder import Recorder
+from sim_bridge.log import schemas as pb
+from sim_bridge.log.counterfactual import counterfactual
+from sim_bridge.log.file import Recovery, iter_messages, repair
+from sim_bridge.log.layout import WIRE_ENCODING, channel_kind
+from sim_bridge.log.plots import phase_tracks
+from sim_bridge.log.reader import read_log
+from sim_bridge.log.recorder import Recorder
+from sim_bridge.log.report import report_log
 
 pytestmark = pytest.mark.timeout(120)
 W = DEFAULT_WORLD
@@ -464,9 +464,9 @@ def test_truncated_logs_recover_what_mcap_recovers_and_repair(tmp_path: Path) ->
 
 WRITER = r"""
 import sys, time
-from runtime import keys
-from runtime.messages import Pose, encode_pose
-from sim_bridge.recorder import Recorder
+from runtime.wire import keys
+from runtime.wire.messages import Pose, encode_pose
+from sim_bridge.log.recorder import Recorder
 rec = Recorder(sys.argv[1], chunk_size=2048, flush_period_s=0.02)
 rec.event("run_start", 0, 0.0, swarm="kill", robots=3, mode="lockstep")
 step = 0

@@ -19,11 +19,20 @@ import numpy as np
 import pytest
 from conftest import ROOT, RobotProc, StubWorld, wait_for, write_test_brain
 
-from runtime import keys
-from runtime.brain import RULE_ASSIGN, RuleBrain
-from runtime.controller import Controller
-from runtime.formation import assign_slots, collision_pairs, formation_error, slot_positions
-from runtime.messages import (
+from runtime.brain.brain import RULE_ASSIGN, RuleBrain
+from runtime.brain.signing import generate_key
+from runtime.brain.swap import swap_brain
+from runtime.decision.controller import Controller
+from runtime.decision.formation import (
+    assign_slots,
+    collision_pairs,
+    formation_error,
+    slot_positions,
+)
+from runtime.decision.patterns import make_pattern
+from runtime.decision.safety import clamp_speed
+from runtime.wire import keys
+from runtime.wire.messages import (
     BrainMsg,
     PatternMsg,
     Pose,
@@ -32,10 +41,6 @@ from runtime.messages import (
     encode_pattern,
     encode_pose,
 )
-from runtime.patterns import make_pattern
-from runtime.safety import clamp_speed
-from runtime.signing import generate_key
-from runtime.swap import swap_brain
 from runtime.world_config import DEFAULT_WORLD
 
 W = DEFAULT_WORLD
@@ -288,7 +293,7 @@ def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
             assert row["answered"] and not row["accepted"] and why in row["reason"]
             assert row["old_brain"] == row["new_brain"] == good_id
         # the other invalid brains straight from the test's session
-        from runtime.swap import read_brain
+        from runtime.brain.swap import read_brain
 
         for name, (path, why) in bad.items():
             manifest, data, _ = read_brain(str(path))
@@ -421,7 +426,7 @@ def test_bad_input_exits_2_with_one_line(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("spec", ["0-3,7", "1,3,5", "2"])
 def test_parse_robots(spec: str) -> None:
-    from runtime.swap import parse_robots
+    from runtime.brain.swap import parse_robots
 
     assert parse_robots(spec) == {"0-3,7": {0, 1, 2, 3, 7}, "1,3,5": {1, 3, 5}, "2": {2}}[spec]
 
@@ -443,7 +448,7 @@ def test_default_loopback_discovery_and_sigterm(world: StubWorld, robots: list[R
 
 
 def test_world_port_is_derived_from_the_swarm(monkeypatch: pytest.MonkeyPatch) -> None:
-    from runtime.zenoh_session import (
+    from runtime.net.session import (
         DEFAULT_BASE_PORT,
         PORT_ENV,
         session_endpoints,

@@ -32,11 +32,11 @@ from support import (
     wait_for,
 )
 
-from runtime import keys
-from runtime.identity import load_identity
-from runtime.zenoh_session import ZenohSetupError, make_config, open_config
-from sim_bridge.router import RouterProcess
-from sim_bridge.swarm_keys import create_swarm_keys
+from runtime.net.identity import load_identity
+from runtime.net.session import ZenohSetupError, make_config, open_config
+from runtime.wire import keys
+from sim_bridge.launch.router import RouterProcess
+from sim_bridge.launch.swarm_keys import create_swarm_keys
 
 SWARM = "star"
 ROOT = Path(__file__).resolve().parents[2]

@@ -21,11 +21,11 @@ import pytest
 import zenoh
 from support import Seen, forge_and_fence, forged_command, forged_keys, free_port, wait_for
 
-from runtime import keys
-from runtime.identity import load_identity
-from runtime.zenoh_session import make_config, open_config
-from sim_bridge.log_reader import read_log
-from sim_bridge.swarm_keys import create_swarm_keys
+from runtime.net.identity import load_identity
+from runtime.net.session import make_config, open_config
+from runtime.wire import keys
+from sim_bridge.launch.swarm_keys import create_swarm_keys
+from sim_bridge.log.reader import read_log
 
 SWARM = "sec"
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,8 +10,8 @@ from typing import Any
 import onnx
 import pytest
 
-from runtime.brain import load_brain
-from runtime.safety import OrcaParams
+from runtime.brain.brain import load_brain
+from runtime.decision.safety import OrcaParams
 from trainer.evaluate import evaluate_brain
 
 EXPORTS = Path(__file__).resolve().parents[2] / "exports"

@@ -19,12 +19,12 @@ from typing import Any
 import pytest
 from netns_hosts import PY, ROOT, Net, cut_for, wait_for
 
-from runtime import keys
-from runtime.identity import load_identity
-from runtime.messages import MessageError, decode_pose
-from runtime.zenoh_session import make_config, open_config
-from sim_bridge.log_reader import read_log
-from sim_bridge.swarm_keys import create_swarm_keys
+from runtime.net.identity import load_identity
+from runtime.net.session import make_config, open_config
+from runtime.wire import keys
+from runtime.wire.messages import MessageError, decode_pose
+from sim_bridge.launch.swarm_keys import create_swarm_keys
+from sim_bridge.log.reader import read_log
 
 ROBOTS = 3
 PORT = 7447

@@ -12,8 +12,8 @@ import signal
 import sys
 import threading
 
-from runtime.identity import load_identity
-from runtime.zenoh_session import make_config, open_config
+from runtime.net.identity import load_identity
+from runtime.net.session import make_config, open_config
 
 
 def main(argv: list[str]) -> int:

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-import sim_bridge.membership as membership
-from sim_bridge.membership import Roster
+import sim_bridge.world.membership as membership
+from sim_bridge.world.membership import Roster
 
 
 def test_once_running_a_token_joins_only_when_its_robot_speaks(

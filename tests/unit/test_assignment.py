@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
 from runtime.core import assignment as A
-from runtime.formation import (
+from runtime.decision.formation import (
     _sq_cost,
     assign_slots_batch,
     assign_slots_env_last,
@@ -327,8 +327,8 @@ def test_batch_wrappers_equal_the_rule() -> None:
 
 def test_world_steps_keep_scipys_assignment() -> None:
     """The training world's every step equals scipy per env with the hysteresis rule."""
-    from runtime.observation import ObservationSpec
-    from trainer.training_world import BatchWorld
+    from runtime.decision.observation import ObservationSpec
+    from trainer.world.training_world import BatchWorld
 
     w = BatchWorld(8, 6, ("circle", "line"), ObservationSpec("general"), seed=5, build_obs=False)
     rng = np.random.default_rng(0)

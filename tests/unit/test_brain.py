@@ -11,7 +11,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from runtime.brain import (
+from runtime.brain.brain import (
     METADATA_KEY,
     RULE_ASSIGN,
     Brain,
@@ -26,7 +26,7 @@ from runtime.brain import (
     short_id,
     validate_brain_bytes,
 )
-from runtime.observation import ObservationSpec
+from runtime.decision.observation import ObservationSpec
 from runtime.world_config import DEFAULT_WORLD
 
 GENERAL = ObservationSpec("general", k_neighbours=6)

@@ -1,7 +1,7 @@
-"""The training world's move (trainer/contacts.py) against independent references.
+"""The training world's move (trainer/world/contacts.py) against independent references.
 
-A collision is what :func:`runtime.formation.count_collisions` (the closest
-approach of :func:`runtime.formation.swept_pair_distance`) says it is; after a
+A collision is what :func:`runtime.decision.formation.count_collisions` (the closest
+approach of :func:`runtime.decision.formation.swept_pair_distance`) says it is; after a
 move no two centres are closer than 2R; the speed clamp, the hold-still rule and
 the travel are checked by hand; the source run as Python gives the compiled
 module's numbers.
@@ -17,12 +17,12 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from runtime.formation import count_collisions, min_separation, swept_pair_distance
-from runtime.observation import ObservationSpec
+from runtime.decision.formation import count_collisions, min_separation, swept_pair_distance
+from runtime.decision.observation import ObservationSpec
 from runtime.world_config import DEFAULT_WORLD
-from trainer import contacts
-from trainer.contacts import CONTACT_TOL_M, move
-from trainer.training_world import BatchWorld
+from trainer.world import contacts
+from trainer.world.contacts import CONTACT_TOL_M, move
+from trainer.world.training_world import BatchWorld
 
 W = DEFAULT_WORLD
 R = W.radius_m
@@ -301,7 +301,7 @@ def test_world_step_counts_and_travel_are_the_moves() -> None:
 
 
 def _source_module() -> ModuleType:
-    """trainer/contacts.py run as Python, whether or not a compiled module shadows it."""
+    """trainer/world/contacts.py run as Python, whether or not a compiled module shadows it."""
     path = Path(contacts.__file__).with_name("contacts.py")
     spec = importlib.util.spec_from_file_location("contacts_source", path)
     assert spec is not None and spec.loader is not None
@@ -312,7 +312,10 @@ def _source_module() -> ModuleType:
 
 def test_the_source_run_as_python_gives_the_compiled_numbers() -> None:
     if contacts.__file__ is None or contacts.__file__.endswith(".py"):
-        pytest.skip("trainer/contacts.py is not compiled (cythonize -i -3 trainer/contacts.py)")
+        pytest.skip(
+            "trainer/world/contacts.py is not compiled "
+            "(cythonize -i -3 trainer/world/contacts.py)"
+        )
     source = _source_module()
     assert source.__file__ is not None and source.__file__.endswith(".py")
     rng = np.random.default_rng(11)

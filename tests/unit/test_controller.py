@@ -12,15 +12,21 @@ from numpy.typing import NDArray
 from test_brain import mlp_model  # tests/unit is on sys.path (pytest rootdir mode)
 from test_observation import reference_rows
 
-from runtime import formation
-from runtime.brain import BrainManifest, RuleBrain, validate_brain_bytes
-from runtime.controller import Controller
-from runtime.decision import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, commands, decide_batch
-from runtime.formation import assign_slots, formation_error, slot_positions
-from runtime.observation import ObservationSpec
-from runtime.patterns import make_pattern
-from runtime.rules import plan_targets
-from runtime.safety import OrcaParams
+from runtime.brain.brain import BrainManifest, RuleBrain, validate_brain_bytes
+from runtime.decision import formation
+from runtime.decision.controller import Controller
+from runtime.decision.formation import assign_slots, formation_error, slot_positions
+from runtime.decision.observation import ObservationSpec
+from runtime.decision.patterns import make_pattern
+from runtime.decision.pipeline import (
+    ERR_BRAIN,
+    ERR_NONFINITE,
+    ERR_TEAM,
+    commands,
+    decide_batch,
+)
+from runtime.decision.rules import plan_targets
+from runtime.decision.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD
 
 W = DEFAULT_WORLD

@@ -1,4 +1,4 @@
-"""The PettingZoo ParallelEnv (trainer/env.py): conformance and behaviour."""
+"""The PettingZoo ParallelEnv (trainer/world/env.py): conformance and behaviour."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 from pettingzoo.utils import parallel_to_aec
 
 from runtime.world_config import DEFAULT_WORLD
-from trainer.env import PatternFormationEnv, parallel_env
+from trainer.world.env import PatternFormationEnv, parallel_env
 
 
 @pytest.mark.parametrize(
@@ -158,7 +158,7 @@ def test_human_mode_draws_every_step_and_returns_none(monkeypatch) -> None:
     import matplotlib.pyplot as plt
 
     # the window code with the Agg backend: no window opens, the drawing runs the same
-    monkeypatch.setattr("trainer.env._check_display", lambda: None)
+    monkeypatch.setattr("trainer.world.env._check_display", lambda: None)
     monkeypatch.setattr(plt, "pause", lambda interval: None)
     was_interactive = plt.isinteractive()
     try:

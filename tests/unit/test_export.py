@@ -10,11 +10,17 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from runtime.brain import BrainManifest, load_brain
-from runtime.observation import ObservationSpec
+from runtime.brain.brain import BrainManifest, load_brain
+from runtime.decision.observation import ObservationSpec
 from trainer.config import TrainConfig
-from trainer.export import BrainFileError, agent_from_onnx, build_onnx, read_manifest, write_brain
-from trainer.networks import Agent
+from trainer.ppo.export import (
+    BrainFileError,
+    agent_from_onnx,
+    build_onnx,
+    read_manifest,
+    write_brain,
+)
+from trainer.ppo.networks import Agent
 
 
 def _agent(algo: str, obs_dim: int = 36, seed: int = 0) -> Agent:

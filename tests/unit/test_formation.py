@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from runtime.core.plan_frame import min_enclosing_circle
-from runtime.formation import (
+from runtime.decision.formation import (
     _weiszfeld,
     assign_centred,
     assign_slots,
@@ -29,7 +29,7 @@ from runtime.formation import (
     slot_distances,
     slot_positions,
 )
-from runtime.patterns import BUILTIN_PATTERNS, make_pattern
+from runtime.decision.patterns import BUILTIN_PATTERNS, make_pattern
 
 coords = st.floats(-20, 20, allow_nan=False, allow_infinity=False)
 

@@ -6,10 +6,10 @@ import time
 
 import numpy as np
 
-from runtime import keys
-from runtime.inbox import PoseInbox, Step
 from runtime.log import Log
-from runtime.messages import Pose, encode_pose
+from runtime.robot.inbox import PoseInbox, Step
+from runtime.wire import keys
+from runtime.wire.messages import Pose, encode_pose
 
 SWARM = "s"
 

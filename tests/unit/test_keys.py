@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from runtime import keys
-from runtime.keys import Key
+from runtime.wire import keys
+from runtime.wire.keys import Key
 
 SWARMS = ["s", "swarm_A-1", "demo"]
 

@@ -12,8 +12,8 @@ HEAVY = ("torch", "pymunk", "mcap", "matplotlib", "onnx", "tqdm")
 
 
 def test_runtime_imports_no_heavy_package() -> None:
-    modules = [f"runtime.{m.name}" for m in pkgutil.iter_modules(runtime.__path__)]
-    assert "runtime.formation" in modules and "runtime.observation" in modules
+    modules = [m.name for m in pkgutil.walk_packages(runtime.__path__, "runtime.")]
+    assert "runtime.decision.formation" in modules and "runtime.decision.observation" in modules
     code = (
         "import importlib, sys\n"
         f"for m in {modules!r}: importlib.import_module(m)\n"

@@ -8,21 +8,28 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime import keys
-from runtime.messages import Command, PatternMsg, Pose, encode_command, encode_pattern, encode_pose
-from runtime.patterns import make_pattern
+from runtime.decision.patterns import make_pattern
+from runtime.wire import keys
+from runtime.wire.messages import (
+    Command,
+    PatternMsg,
+    Pose,
+    encode_command,
+    encode_pattern,
+    encode_pose,
+)
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.log_columns import decode_commands
-from sim_bridge.log_layout import (
+from sim_bridge.log.columns import decode_commands
+from sim_bridge.log.layout import (
     EVENTS_TOPIC,
     WIRE_ENCODING,
     WIRE_SCHEMAS,
     wire_kind,
     wire_schema,
 )
-from sim_bridge.log_phases import phases_of
-from sim_bridge.log_reader import read_log
-from sim_bridge.recorder import Recorder
+from sim_bridge.log.phases import phases_of
+from sim_bridge.log.reader import read_log
+from sim_bridge.log.recorder import Recorder
 
 W = DEFAULT_WORLD
 

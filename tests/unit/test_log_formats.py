@@ -14,14 +14,14 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 
 from patternrl.cli import main as cli
-from runtime import keys
-from runtime.messages import Command, Pose, decode_command, encode_command, encode_pose
-from runtime.wire_fields import COMMAND, POSE, FieldTable
-from sim_bridge import log_schemas as pb
-from sim_bridge.log_columns import decode_commands_pb, decode_poses_pb
-from sim_bridge.log_layout import MAX_PAYLOAD_BYTES
-from sim_bridge.log_reader import read_log
-from sim_bridge.recorder import Recorder, SimTime
+from runtime.wire import keys
+from runtime.wire.fields import COMMAND, POSE, FieldTable
+from runtime.wire.messages import Command, Pose, decode_command, encode_command, encode_pose
+from sim_bridge.log import schemas as pb
+from sim_bridge.log.columns import decode_commands_pb, decode_poses_pb
+from sim_bridge.log.layout import MAX_PAYLOAD_BYTES
+from sim_bridge.log.reader import read_log
+from sim_bridge.log.recorder import Recorder, SimTime
 
 POSES = [Pose(3, 12, 1.2, 0.5, 0.0, -1.0, 0.0, 4), Pose(0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0),
          Pose(2**32 - 1, 2**64 - 1, -1e300, 1e-300, 7.0, 0.25, -0.0, 2**32 - 1)]

@@ -14,10 +14,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime import keys, pose_batch
-from runtime import messages as m
-from runtime import wire_fields as wf
-from runtime.messages import (
+from runtime.wire import fields as wf
+from runtime.wire import keys, pose_batch
+from runtime.wire import messages as m
+from runtime.wire.messages import (
     BrainMsg,
     Command,
     Message,
@@ -660,7 +660,7 @@ def test_keys_are_valid_zenoh_key_expressions() -> None:
 def test_pattern_messages_are_bounded_before_use() -> None:
     import struct
 
-    from runtime.messages import MAX_PATTERN_POINTS, Tag, decode_pattern
+    from runtime.wire.messages import MAX_PATTERN_POINTS, Tag, decode_pattern
 
     def raw(n_claimed: int, pts: np.ndarray) -> bytes:
         head = struct.pack("<BBQdHI", Tag.PATTERN, 1, 1, 0.025, 0, n_claimed)

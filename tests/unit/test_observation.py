@@ -1,4 +1,4 @@
-"""The observation builders (runtime/observation.py) and the general row they share
+"""The observation builders (runtime/decision/observation.py) and the general row they share
 (runtime/core/general_row.py), the general and plan rows held against a reference
 written here from the row's documented layout: every other robot sorted by
 (squared distance, id) with Python's ``sorted``, the columns filled one by one."""
@@ -13,8 +13,8 @@ import pytest
 from test_neighbours import python_core  # tests/unit is on sys.path (pytest rootdir mode)
 
 from runtime.core.general_row import GeneralRows
-from runtime.formation import assign_slots_batch, slot_positions
-from runtime.observation import (
+from runtime.decision.formation import assign_slots_batch, slot_positions
+from runtime.decision.observation import (
     ObservationError,
     ObservationSpec,
     general_observation,
@@ -22,7 +22,7 @@ from runtime.observation import (
     observe,
     paper_observation,
 )
-from runtime.patterns import make_pattern
+from runtime.decision.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 W = DEFAULT_WORLD

@@ -24,8 +24,8 @@ from test_neighbours import python_core  # tests/unit is on sys.path (pytest roo
 
 from runtime.core import orca as core_orca
 from runtime.core.orca import MAX_NEIGHBOURS, OrcaFilter, clamp_speed
-from runtime.decision import commands
-from runtime.safety import OrcaParams, landing, make_filter
+from runtime.decision.pipeline import commands
+from runtime.decision.safety import OrcaParams, landing, make_filter
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 W = DEFAULT_WORLD

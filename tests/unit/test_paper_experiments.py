@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from runtime.brain import RULE_ASSIGN, load_brain
-from runtime.observation import ObservationSpec
-from runtime.safety import OrcaParams
+from runtime.brain.brain import RULE_ASSIGN, load_brain
+from runtime.decision.observation import ObservationSpec
+from runtime.decision.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD
 from trainer.evaluate import evaluate_brain
 

@@ -46,7 +46,7 @@ def test_paper_brain_mean_reward_rises(tmp_path: Path, front_end: str) -> None:
 
 
 def test_a_pattern_sequence_gives_the_brain_each_stage_s_pattern(tmp_path: Path) -> None:
-    from runtime.patterns import make_pattern
+    from runtime.decision.patterns import make_pattern
 
     cfg = SMALL.with_(front_end="transport")
     plan = RunPlan(patterns=["circle", "line"], out=tmp_path / "s.onnx", episodes=8,

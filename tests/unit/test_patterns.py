@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.patterns import (
+from runtime.decision.patterns import (
     BUILTIN_PATTERNS,
     PatternError,
     make_pattern,
@@ -132,7 +132,7 @@ def test_cli_show_draws_png(tmp_path: Path) -> None:
 
 
 def test_random_patterns_are_valid_and_seeded() -> None:
-    from runtime.patterns import random_pattern
+    from runtime.decision.patterns import random_pattern
 
     a = [random_pattern(np.random.default_rng(7), n) for n in range(2, 40, 3)]
     b = [random_pattern(np.random.default_rng(7), n) for n in range(2, 40, 3)]
@@ -144,7 +144,7 @@ def test_random_patterns_are_valid_and_seeded() -> None:
 
 
 def test_a_pattern_file_with_an_absurd_coordinate_is_refused_with_one_line(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from runtime.patterns import MAX_PATTERN_COORD_M
+    from runtime.decision.patterns import MAX_PATTERN_COORD_M
 
     f = tmp_path / "far.csv"
     f.write_text("0,0\n1e300,0\n0,1\n")

@@ -9,21 +9,22 @@ import pytest
 import torch
 from support import assert_same_episodes
 
-from runtime.brain import BrainManifest, load_brain
-from runtime.controller import Controller
-from runtime.decision import commands, decide_batch
-from runtime.formation import assign_slots_batch
-from runtime.observation import ObservationError, ObservationSpec, observe
-from runtime.patterns import make_pattern
-from runtime.rules import FrameRule, PlanFrame, frame_plan, plan_targets
-from runtime.safety import OrcaParams, landing
+from runtime.brain.brain import BrainManifest, load_brain
+from runtime.decision.controller import Controller
+from runtime.decision.formation import assign_slots_batch
+from runtime.decision.observation import ObservationError, ObservationSpec, observe
+from runtime.decision.patterns import make_pattern
+from runtime.decision.pipeline import commands, decide_batch
+from runtime.decision.rules import FrameRule, PlanFrame, frame_plan, plan_targets
+from runtime.decision.safety import OrcaParams, landing
 from runtime.world_config import DEFAULT_WORLD
 from trainer.config import TrainConfig, obs_spec_for
 from trainer.evaluate import evaluate_brain
-from trainer.export import agent_from_onnx, write_brain
-from trainer.networks import Agent
-from trainer.train import RunPlan, collect_rollout, train
-from trainer.training_world import BatchWorld
+from trainer.ppo.export import agent_from_onnx, write_brain
+from trainer.ppo.networks import Agent
+from trainer.rollout import collect_rollout
+from trainer.train import RunPlan, train
+from trainer.world.training_world import BatchWorld
 
 W = 0.25
 SPEC = ObservationSpec("plan", travel_weight=W)
@@ -147,7 +148,7 @@ def test_the_graph_round_trips_with_its_learned_part(tmp_path: Path) -> None:
 
 
 def test_training_behind_the_filter_moves_robots_by_the_filtered_command() -> None:
-    """``train_safety``: the world moves each robot by runtime.decision.commands of the
+    """``train_safety``: the world moves each robot by runtime.decision.pipeline.commands of the
     sampled action, as a robot would; a seeded short run then trains and exports."""
     cfg = TrainConfig(algo="ppo", obs="plan", residual=True, travel_weight=W, train_safety=True,
                       n_robots=12, n_envs=3, rollout_steps=1, init_std=0.5, seed=0)

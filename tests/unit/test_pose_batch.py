@@ -12,12 +12,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import runtime.messages as m
-from runtime import keys
-from runtime.identity import access_control
-from runtime.inbox import PoseInbox, Step
+import runtime.wire.messages as m
 from runtime.log import Log
-from runtime.messages import (
+from runtime.net.identity import access_control
+from runtime.robot.inbox import PoseInbox, Step
+from runtime.wire import keys
+from runtime.wire.messages import (
     MAX_POSES_ROBOTS,
     MessageError,
     PoseBatch,
@@ -25,9 +25,9 @@ from runtime.messages import (
     decode_poses,
     encode_poses,
 )
-from runtime.pose_batch import decode_positions
-from sim_bridge.log_reader import read_log
-from sim_bridge.recorder import Recorder
+from runtime.wire.pose_batch import decode_positions
+from sim_bridge.log.reader import read_log
+from sim_bridge.log.recorder import Recorder
 
 SWARM = "s"
 

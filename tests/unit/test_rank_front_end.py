@@ -10,14 +10,14 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from runtime.observation import ObservationSpec, paper_observation
-from runtime.patterns import make_pattern
+from runtime.decision.observation import ObservationSpec, paper_observation
+from runtime.decision.patterns import make_pattern
 from trainer.config import TrainConfig
-from trainer.export import BrainFileError, agent_from_onnx, build_onnx
-from trainer.front_end import front_dim
-from trainer.networks import Agent
-from trainer.rank import TEAM_AXIS, TEAM_AXIS_DEG, axis_gap, rank_goals, ranks
-from trainer.training_world import BatchWorld
+from trainer.ppo.export import BrainFileError, agent_from_onnx, build_onnx
+from trainer.ppo.front_end import front_dim
+from trainer.ppo.networks import Agent
+from trainer.ppo.rank import TEAM_AXIS, TEAM_AXIS_DEG, axis_gap, rank_goals, ranks
+from trainer.world.training_world import BatchWorld
 
 N = 10
 SPEC = ObservationSpec("paper", n_robots=N)
@@ -149,7 +149,7 @@ def test_slots_front_end_points_each_robot_at_its_rank_slot(tmp_path: Path) -> N
 
 
 def test_progress_toward_rank_goals_telescopes_so_swapping_goals_cannot_be_farmed() -> None:
-    from trainer.reward import RewardConfig
+    from trainer.world.reward import RewardConfig
 
     only_progress = RewardConfig(step_penalty=0.0, collision_penalty=0.0, beta=0.0,
                                  progress_weight=1.0, formed_bonus=0.0)
@@ -176,7 +176,7 @@ def test_progress_toward_rank_goals_telescopes_so_swapping_goals_cannot_be_farme
 def test_transport_front_end_finds_the_optimal_assignment_from_the_paper_observation(
     pattern: str,
 ) -> None:
-    from runtime.formation import assign_slots
+    from runtime.decision.formation import assign_slots
 
     C = make_pattern(pattern, N)
     Cc = C - C.mean(axis=0)

@@ -10,14 +10,14 @@ import pytest
 import torch
 from support import assert_same_episodes
 
-from runtime.brain import BrainManifest, RuleBrain, load_brain
-from runtime.decision import decide_batch
-from runtime.observation import ObservationSpec
-from runtime.patterns import make_pattern
-from runtime.safety import OrcaParams
+from runtime.brain.brain import BrainManifest, RuleBrain, load_brain
+from runtime.decision.observation import ObservationSpec
+from runtime.decision.patterns import make_pattern
+from runtime.decision.pipeline import decide_batch
+from runtime.decision.safety import OrcaParams
 from trainer.config import TrainConfig
-from trainer.export import agent_from_onnx, build_onnx, write_brain
-from trainer.networks import Agent
+from trainer.ppo.export import agent_from_onnx, build_onnx, write_brain
+from trainer.ppo.networks import Agent
 
 SPEC = ObservationSpec("general")
 

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from runtime.brain import RULE_ASSIGN
-from runtime.robot_status import RobotStats, percentile
-from runtime.swap_worker import SwapReply
+from runtime.brain.brain import RULE_ASSIGN
+from runtime.robot.status import RobotStats, percentile
+from runtime.robot.swap_worker import SwapReply
 
 
 def test_percentile_is_nearest_rank() -> None:

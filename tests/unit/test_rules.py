@@ -1,4 +1,4 @@
-"""Team rules (runtime/rules.py): synchronised straight lines in a frame fixed per pattern."""
+"""Team rules (runtime/decision/rules.py): synchronised straight lines in a frame per pattern."""
 
 from __future__ import annotations
 
@@ -8,16 +8,16 @@ import math
 import numpy as np
 import pytest
 
-from runtime.brain import RULES, BrainError, RuleBrain, load_brain, make_rule
-from runtime.controller import Controller
+from runtime.brain.brain import RULES, BrainError, RuleBrain, load_brain, make_rule
 from runtime.core.plan_frame import min_enclosing_circle
-from runtime.decision import decide_batch
-from runtime.formation import assign_slots, lower_bounds
-from runtime.patterns import make_pattern
-from runtime.rules import FRAME_RULES, FrameRule, frame_plan
-from runtime.safety import OrcaParams
+from runtime.decision.controller import Controller
+from runtime.decision.formation import assign_slots, lower_bounds
+from runtime.decision.patterns import make_pattern
+from runtime.decision.pipeline import decide_batch
+from runtime.decision.rules import FRAME_RULES, FrameRule, frame_plan
+from runtime.decision.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.brain_choice import brains_from_arg
+from sim_bridge.world.brain_choice import brains_from_arg
 from trainer.evaluate import evaluate_brain
 
 W = DEFAULT_WORLD

@@ -1,4 +1,4 @@
-"""Tests of the ORCA safety filter (runtime/safety.py).
+"""Tests of the ORCA safety filter (runtime/decision/safety.py).
 
 The scenario tests simulate small worlds in which every robot runs the filter
 each step on its own observation (neighbours' relative positions, velocities
@@ -16,9 +16,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runtime.decision import commands
-from runtime.formation import min_separation, min_swept_separation
-from runtime.safety import (
+from runtime.decision.formation import min_separation, min_swept_separation
+from runtime.decision.pipeline import commands
+from runtime.decision.safety import (
     FilterResult,
     OrcaParams,
     make_filter,

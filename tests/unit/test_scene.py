@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from runtime.world_config import DEFAULT_WORLD
-from sim_bridge.scene import scene_json, scene_update
+from sim_bridge.live.scene import scene_json, scene_update
 
 
 def _dumps(update: dict) -> bytes:

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from runtime.brain import BrainError, load_brain, load_sent_brain, read_brain_file
-from runtime.brain_cli import sign_brain_file, verify_brain_file
-from runtime.signing import (
+from runtime.brain.brain import BrainError, load_brain, load_sent_brain, read_brain_file
+from runtime.brain.cli import sign_brain_file, verify_brain_file
+from runtime.brain.signing import (
     RELEASE_PUBLIC_KEY,
     SignatureError,
     default_trust,
@@ -107,7 +107,7 @@ def test_brain_command_keygen_sign_verify(tmp_path: Path) -> None:
 def test_signing_costs_the_robot_little_to_import() -> None:
     code = (
         "import sys, time\nt = time.perf_counter()\n"
-        "from runtime import signing\n"
+        "from runtime.brain import signing\n"
         "print(time.perf_counter() - t, 'torch' in sys.modules)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,

@@ -10,18 +10,23 @@ from typing import Any
 import numpy as np
 import pytest
 
-from runtime import keys
-from runtime.formation import assign_slots, formation_error, formation_error_batch, slot_distances
-from runtime.messages import Command, decode_poses, encode_command
-from runtime.patterns import make_pattern
+from runtime.decision.formation import (
+    assign_slots,
+    formation_error,
+    formation_error_batch,
+    slot_distances,
+)
+from runtime.decision.patterns import make_pattern
+from runtime.net.session import open_session
+from runtime.wire import keys
+from runtime.wire.messages import Command, decode_poses, encode_command
 from runtime.world_config import DEFAULT_WORLD
-from runtime.zenoh_session import open_session
-from sim_bridge.brain_choice import BrainChoice, rule_choice
-from sim_bridge.brain_swaps import phase_brain_label
-from sim_bridge.launch import free_port
-from sim_bridge.membership import Roster
-from sim_bridge.phase_tally import PhaseTally, formation_measure
-from sim_bridge.world_link import WorldLink
+from sim_bridge.launch.launch import free_port
+from sim_bridge.world.brain_choice import BrainChoice, rule_choice
+from sim_bridge.world.brain_swaps import phase_brain_label
+from sim_bridge.world.membership import Roster
+from sim_bridge.world.phase_tally import PhaseTally, formation_measure
+from sim_bridge.world.world_link import WorldLink
 
 W = DEFAULT_WORLD
 

@@ -8,11 +8,11 @@ from collections.abc import Iterator
 
 import pytest
 
-from runtime.brain import RULE_ASSIGN, Brain, BrainManifest, RuleBrain, read_brain_file
+from runtime.brain.brain import RULE_ASSIGN, Brain, BrainManifest, RuleBrain, read_brain_file
+from runtime.decision.observation import ObservationSpec
 from runtime.log import Log
-from runtime.messages import BrainMsg, encode_brain
-from runtime.observation import ObservationSpec
-from runtime.swap_worker import SwapReply, SwapWorker
+from runtime.robot.swap_worker import SwapReply, SwapWorker
+from runtime.wire.messages import BrainMsg, encode_brain
 from runtime.world_config import DEFAULT_WORLD
 
 

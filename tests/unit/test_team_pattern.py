@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.brain import RuleBrain, load_brain
-from runtime.messages import PatternMsg
-from runtime.patterns import PatternError, make_pattern
-from runtime.team_pattern import MAX_VERSION_STEP, TeamPattern, fit_pattern
+from runtime.brain.brain import RuleBrain, load_brain
+from runtime.decision.patterns import PatternError, make_pattern
+from runtime.decision.team_pattern import MAX_VERSION_STEP, TeamPattern, fit_pattern
+from runtime.wire.messages import PatternMsg
 
 EXPORTS = Path(__file__).resolve().parents[2] / "exports"
 

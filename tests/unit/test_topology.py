@@ -6,8 +6,8 @@ import argparse
 
 import pytest
 
-from runtime.zenoh_session import Role, session_endpoints, world_port
-from sim_bridge.launch import PEER_MAX_ROBOTS, topology_of
+from runtime.net.session import Role, session_endpoints, world_port
+from sim_bridge.launch.launch import PEER_MAX_ROBOTS, topology_of
 
 
 @pytest.mark.parametrize("role", ["world", "robot", "tool"])

@@ -19,7 +19,7 @@ from trainer.config import (
     config_toml,
     parse_set,
 )
-from trainer.reward import PAPER_REWARD, RewardConfig
+from trainer.world.reward import PAPER_REWARD, RewardConfig
 
 
 def _config(*argv: str) -> TrainConfig:

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from runtime.brain import BrainManifest, load_brain
-from runtime.observation import ObservationSpec
+from runtime.brain.brain import BrainManifest, load_brain
+from runtime.decision.observation import ObservationSpec
 from runtime.world_config import DEFAULT_WORLD
 from trainer.checkpoints import (
     InitError,
@@ -24,12 +24,13 @@ from trainer.checkpoints import (
 from trainer.config import TrainConfig, obs_spec_for, reward_for
 from trainer.curve import CURVE_FIELDS, curve_row, write_curve
 from trainer.evaluate import evaluate_brain
-from trainer.export import write_brain
-from trainer.networks import Agent, ObsNormaliser, gaussian_kl, gaussian_logprob
-from trainer.storage import RolloutBatch, discounted_returns, gae
-from trainer.train import RunPlan, artefact_paths, collect_rollout, train
-from trainer.training_world import BatchWorld
-from trainer.update import UpdateStats, adapt_kl_coef, minibatches, policy_loss
+from trainer.ppo.export import write_brain
+from trainer.ppo.networks import Agent, ObsNormaliser, gaussian_kl, gaussian_logprob
+from trainer.ppo.storage import RolloutBatch, discounted_returns, gae
+from trainer.ppo.update import UpdateStats, adapt_kl_coef, minibatches, policy_loss
+from trainer.rollout import collect_rollout
+from trainer.train import RunPlan, artefact_paths, train
+from trainer.world.training_world import BatchWorld
 
 # ------------------------------------------------------------------ returns
 

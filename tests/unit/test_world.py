@@ -1,4 +1,4 @@
-"""Tests of the batch training world (trainer/training_world.py)."""
+"""Tests of the batch training world (trainer/world/training_world.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runtime.formation import (
+from runtime.decision.formation import (
     assign_slots_batch,
     count_collisions,
     formation_error_batch,
@@ -19,12 +19,12 @@ from runtime.formation import (
     swept_contacts,
     swept_pair_distance,
 )
-from runtime.observation import ObservationSpec, general_observation, paper_observation
-from runtime.patterns import make_pattern
+from runtime.decision.observation import ObservationSpec, general_observation, paper_observation
+from runtime.decision.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
-from trainer.contacts import CONTACT_TOL_M
-from trainer.reward import PAPER_REWARD, RewardConfig
-from trainer.training_world import BatchWorld
+from trainer.world.contacts import CONTACT_TOL_M
+from trainer.world.reward import PAPER_REWARD, RewardConfig
+from trainer.world.training_world import BatchWorld
 
 W = DEFAULT_WORLD
 TWO_R = W.min_separation_m
@@ -175,7 +175,7 @@ def test_crowd_driven_to_centre_never_interpenetrates() -> None:
 
 
 def test_jam_that_does_not_clear_holds_robots_still(monkeypatch: pytest.MonkeyPatch) -> None:
-    import trainer.contacts as world_module
+    import trainer.world.contacts as world_module
 
     monkeypatch.setattr(world_module, "CONTACT_SWEEPS", 1)  # too few sweeps for a chain
     w = make(n_envs=1, n_robots=4, build_obs=False)
@@ -436,7 +436,7 @@ def test_set_patterns_retargets_from_where_robots_stand() -> None:
 
 
 def test_step_reward_terms() -> None:
-    from trainer.reward import DEFAULT_REWARD, PAPER_REWARD, step_reward
+    from trainer.world.reward import DEFAULT_REWARD, PAPER_REWARD, step_reward
 
     hits = np.array([[1], [0]])
     X = np.array([[[0.0], [1.0]], [[0.0], [0.0]]])  # (2, N=2, E=1)

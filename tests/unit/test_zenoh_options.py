@@ -9,14 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from runtime.zenoh_session import (
+from runtime.net.session import (
     ZenohSetupError,
     add_zenoh_arguments,
     config_from_args,
     identity_from_args,
     world_port,
 )
-from sim_bridge.swarm_keys import create_swarm_keys
+from sim_bridge.launch.swarm_keys import create_swarm_keys
 
 
 def parser(with_exec_mode: bool = False) -> argparse.ArgumentParser:

@@ -1,0 +1,227 @@
+"""One robot's decision maker: :class:`Controller`, the pipeline's steps on its own row.
+
+The steps are :mod:`runtime.decision.pipeline`'s (assign, target, observe, act, command); the
+controller runs them for one robot of one team, once per step, with the current
+poses of the live robots ordered by robot id, calling the very functions a batch
+of teams runs (:mod:`runtime.core`) on its team as a batch of one. It holds state
+only: the last three frames (the paper observation and velocity estimates need
+them), the previous assignment (hysteresis) and its slot potentials (the solver's
+warm start), the centred pattern, the plan's support, and the scratch of the row
+builder and the safety filter; each step is one call.
+
+Frames. ``frames[0]`` is the newest (t), ``frames[1]`` is t-1 and ``frames[2]``
+is t-2; at the start (or after the team size changes) the missing earlier frames
+repeat frame t, so the first velocity estimate is zero.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from runtime.brain.brain import Brain
+from runtime.core.assignment import TeamAssignment
+from runtime.core.general_row import GeneralRows
+from runtime.decision.observation import observe
+from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
+from runtime.decision.rules import PlanFrame
+from runtime.decision.safety import OrcaParams, landing, make_filter
+from runtime.types import Array, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+__all__ = ["Controller"]
+
+
+class Controller:
+    """One robot's decision maker: the pipeline's steps on its own row, with their state.
+
+    Not thread-safe: call :meth:`decide`, :meth:`set_brain` and :meth:`reset`
+    from one thread (the control loop); swapping a brain between two decisions
+    is then atomic by construction.
+    """
+
+    def __init__(
+        self,
+        brain: Brain,
+        world: WorldConfig = DEFAULT_WORLD,
+        safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
+    ) -> None:
+        self.world = world
+        self.safety = safety
+        self._brain = brain
+        self._filter = make_filter(safety, world)
+        self._reach = world.v_max_mps * world.dt_s
+        self._rows = GeneralRows(brain.spec.k_neighbours, self._reach)
+        self._row: NDArray[Any] = np.zeros((1, 1, self._rows.dim))  # a brain's own input
+        self._pattern_obj: object = None
+        self._cc: Array = np.zeros((0, 2))
+        self.reset()
+
+    # ---------------------------------------------------------------- state
+
+    @property
+    def brain(self) -> Brain:
+        return self._brain
+
+    def set_brain(self, brain: Brain) -> None:
+        """Use ``brain`` from the next decision on (frames and slots are kept)."""
+        self._brain = brain
+        if brain.spec.needs_slots and brain.spec.dim != self._rows.dim:  # another row width
+            self._rows = GeneralRows(brain.spec.k_neighbours, self._reach)
+            self._row = np.zeros((1, 1, self._rows.dim))
+
+    def reset(self) -> None:
+        """Forget the history: frames, previous assignment, the plan's support."""
+        self._n = -1
+        self._frames: list[Array] = []  # positions at t, t-1, t-2 (own copies)
+        self._last_step: int | None = None
+        self._prev_slots: IntArray | None = None
+        self._assignment: TeamAssignment | None = None  # its slots and potentials, kept
+        self._vel: Array = np.zeros((1, 0, 2))  # the team's velocity estimates (m/s)
+        self._plan = PlanFrame()
+
+    @property
+    def previous_slots(self) -> IntArray | None:
+        return self._prev_slots
+
+    def _set_pattern(self, pattern: Array) -> None:
+        c = np.asarray(pattern, dtype=np.float64)
+        if c.ndim != 2 or c.shape[-1] != 2:
+            raise ValueError(f"pattern must have shape (n, 2), got {c.shape}")
+        self._cc = c - c.mean(axis=0, keepdims=True)
+        self._pattern_obj = pattern
+        self._prev_slots = None
+        self._assignment = None
+
+    def _use_pattern(self, pattern: Array) -> None:
+        """Cache the centred pattern; equal values in a new array object keep it."""
+        old = self._pattern_obj
+        if (
+            isinstance(old, np.ndarray)
+            and old.shape == np.shape(pattern)
+            and np.array_equal(old, pattern)
+        ):
+            self._pattern_obj = pattern
+        else:
+            self._set_pattern(pattern)
+
+    def _push(self, pos: Array, step: int | None) -> None:
+        n = pos.shape[0]
+        if n != self._n:
+            self._n = n
+            self._frames = [pos, pos, pos]
+            self._prev_slots = None
+            self._assignment = None
+            self._vel = np.zeros((1, n, 2))
+        elif step is not None and step == self._last_step:
+            self._frames[0] = pos  # the same step again (realtime): refresh, do not shift
+        else:
+            f = self._frames
+            self._frames = [pos, f[0], f[1]]
+        self._last_step = step
+
+    # -------------------------------------------------------------- decide
+
+    def _assign(self, pos: Array) -> tuple[IntArray, float, float]:
+        """Step 1: the shared assignment with hysteresis, warm from the last step's
+        potentials; also the team's centroid (cx, cy)."""
+        if self._assignment is None:  # a new team or pattern: no warm start to keep
+            self._assignment = TeamAssignment(self._cc)
+        slots: IntArray = np.empty(len(pos), dtype=np.int64)
+        cx, cy = self._assignment.step(pos, slots)
+        self._prev_slots = slots
+        return slots, cx, cy
+
+    def _target(self, i: int, pos: Array, slots: IntArray, cx: float, cy: float
+                ) -> tuple[float, float, float | None]:
+        """Step 2: robot i's slot in the world (sx, sy) and the plan's steps left (None for a
+        brain without a plan)."""
+        spec = self._brain.spec
+        if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
+            pts = self._cc[slots]
+            tx, ty, k = self._plan.solve_floats(pos, pts, spec.travel_weight, self.world)
+            qx, qy = pts[i].tolist()
+            return qx + tx, qy + ty, k
+        qx, qy = self._cc[int(slots[i])].tolist()
+        return qx + cx, qy + cy, None  # == slot_positions(...)[i]
+
+    def _act(self, i: int, P: Array, V: Array, slots: IntArray, cx: float, cy: float
+             ) -> tuple[float, float, float | None]:
+        """Steps 2-4: the brain's velocity for robot i (m/s) and the plan's steps left."""
+        brain = self._brain
+        spec = brain.spec
+        team = getattr(brain, "team_plan", None)
+        if team is not None:  # a team rule plans from the poses
+            c = np.asarray(self._pattern_obj, dtype=np.float64)
+            out, k = team(P, c[None], slots[None])
+            vx, vy = np.asarray(out)[0, i].tolist()
+            return vx, vy, float(k[0])
+        if not spec.needs_slots:  # the paper's observation
+            obs = observe(spec, self._frames, None, (i,), self.world)
+            vx, vy = np.asarray(brain.act(obs), dtype=np.float64)[0].tolist()
+            return vx, vy, None
+        sx, sy, steps_left = self._target(i, P[0], slots, cx, cy)
+        pace = 0.0 if steps_left is None else steps_left * self._reach
+        direct: NDArray[np.float32] | None = getattr(brain, "input_row", None)
+        if direct is not None:  # onnxruntime reads the row where it is written
+            self._rows.robot(0, i, P, V, sx, sy, pace, direct.reshape(1, 1, -1))
+            vx, vy = brain.act_input()  # type: ignore[attr-defined]
+        else:
+            self._rows.robot_f64(0, i, P, V, sx, sy, pace, self._row)
+            vx, vy = np.asarray(brain.act(self._row[0]), dtype=np.float64)[0].tolist()
+        return vx, vy, steps_left
+
+    def decide(
+        self,
+        robot_index: int,
+        positions: Array,
+        pattern: Array,
+        step: int | None = None,
+    ) -> Decision:
+        """Decide robot ``robot_index``'s velocity for this step.
+
+        ``positions``: (n, 2) current poses of the live robots, ordered by robot
+        id; ``robot_index`` is this robot's row. ``pattern``: (n, 2) target
+        pattern (pass the same array object while it does not change: its
+        centred copy is cached). ``step``: the world step these poses belong
+        to; a repeated step refreshes the newest frame instead of shifting the
+        history (realtime mode deciding faster than the world steps).
+        A non-finite brain output, a brain that cannot drive n robots or a
+        brain that raises makes the robot hold still, with ``error`` set.
+        """
+        t0 = time.perf_counter_ns()
+        pos = np.array(positions, dtype=np.float64)  # a copy: the history is ours
+        if pattern is not self._pattern_obj:
+            self._use_pattern(pattern)
+        self._push(pos, step)
+        n = pos.shape[0]
+        i = robot_index
+        if not self._brain.spec.accepts_team(n) or self._cc.shape[0] != n:
+            return self._hold(t0, 0.0, 0.0, ERR_TEAM, -1)
+        slots, cx, cy = self._assign(pos)  # 1. assign
+        slot = int(slots[i])
+        P = pos[None]  # the team as a batch of one
+        V = self._vel
+        np.subtract(pos, self._frames[1], out=V[0])
+        V /= self.world.dt_s
+        try:  # 2-4. target, observe, act
+            bvx, bvy, steps_left = self._act(i, P, V, slots, cx, cy)
+        except Exception:  # a brain must never take the loop down
+            return self._hold(t0, 0.0, 0.0, ERR_BRAIN, slot)
+        if not (math.isfinite(bvx) and math.isfinite(bvy)):
+            return self._hold(t0, bvx, bvy, ERR_NONFINITE, slot)
+        # 5. command: clamp and the safety filter (no neighbour considered without one)
+        horizon = landing(self.safety or OrcaParams(), steps_left, self.world)
+        vx, vy, changed, change = self._filter.robot(0, i, P, V, bvx, bvy, horizon)
+        us = (time.perf_counter_ns() - t0) / 1000.0
+        return Decision((vx, vy), (bvx, bvy), changed and self.safety is not None, change, us,
+                        "", slot)
+
+    @staticmethod
+    def _hold(t0: int, bvx: float, bvy: float, error: str, slot: int) -> Decision:
+        us = (time.perf_counter_ns() - t0) / 1000.0
+        return Decision((0.0, 0.0), (bvx, bvy), False, 0.0, us, error, slot)

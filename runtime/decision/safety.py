@@ -1,0 +1,205 @@
+"""ORCA safety filter: the last word between a brain and its robot's motors.
+
+Every step, each robot replaces its brain's *preferred* velocity by the velocity
+closest to it that ORCA (optimal reciprocal collision avoidance, van den Berg,
+Guy, Lin and Manocha, 2011) deems collision-free with respect to its
+neighbours. The algorithm is a line-for-line port of RVO2's
+``Agent::computeNewVelocity`` (agent-agent part) with its three linear programs
+``linearProgram1/2/3``, written once in :mod:`runtime.core.orca` (compiled at
+install, the same source runs as Python without a compiler) with its neighbour
+choice inside it. This module holds the filter's tuning (:class:`OrcaParams`), the
+landing horizon and the one-robot convenience call :func:`orca_filter`.
+
+The filter works from the robot's own observation only: neighbours' positions
+relative to its own and their velocities (which the caller estimates from two
+consecutive frames). Each robot takes half the responsibility for each pair;
+when both robots of a pair run the filter with consistent velocity estimates,
+and the linear program is feasible, their centres stay at least
+``2 * (R + radius_margin_m)`` apart over the time horizon.
+
+Choices, all documented here:
+
+* **Time horizon** ``OrcaParams.time_horizon_s`` (tau) for other robots.
+* **Collision case.** When two robots already overlap the *inflated* radius
+  ``2 * (R + radius_margin_m)``, RVO2 "projects on the cut-off circle at time
+  step": the constraint asks the pair to be separated again after one time
+  step. We use the world's ``dt_s`` as that time step, so one discrete step
+  never brings two centres below ``2R`` when both robots run the filter.
+* **Speed limit.** The linear program uses the max-speed circle of radius
+  ``v_max``; the result is also clamped, so ``|v| <= v_max`` always.
+* **Non-finite input.** A NaN/inf preferred or own velocity is treated as zero;
+  a neighbour with a non-finite position is ignored, one with a non-finite
+  velocity is assumed still.
+* **Deadlock breaking ("keep right").** ORCA is symmetric, and symmetric
+  encounters stall: two robots crossing at right angles, mirror images of each
+  other, or a ring of robots swapping antipodes, all slow down and freeze. (An
+  exactly head-on pair does not: RVO2's tie rule picks the right leg.)
+  Whenever the preferred velocity violates at least one ORCA half-plane, we
+  rotate it clockwise by the small fixed angle ``OrcaParams.keep_right_rad``
+  (default 0.2 rad, about 11 degrees) before solving the linear program. Every
+  robot thus veers slightly to its own right when something is in its way:
+  mirror-symmetric pairs resolve, and a symmetric crowd tends to turn into a
+  roundabout instead of a jam (8 robots swapping antipodes on a 2 m circle
+  arrive with the defaults, tau = 0.75 s and a 2 cm margin, in 71 steps, and
+  12 in 88; at tau = 0.5 s with a 1 cm margin they stall, without collision:
+  ``benchmarks/orca_sweep.py`` measures which settings stall).
+  The rule is a symmetry breaker, not a traffic law: it does not
+  override an encounter that is already asymmetric (a head-on pair offset by
+  a few millimetres passes on whichever side ORCA picks). It is deterministic
+  (no RNG) and does nothing when the preferred velocity is already safe.
+  Set the angle to 0 to recover plain RVO2 behaviour (the RVO2 examples
+  perturb the preference randomly instead).
+* **Landing.** ORCA predicts every robot at constant velocity over its horizon,
+  so a robot running at full speed toward a slot 0.4 m from a neighbour's looks
+  bound for a collision that its landing would never reach; the filter slowed
+  or turned it, and since the farthest robot sets a synchronised team's pace,
+  the whole team lost a step each time (86-100 % of the steps the filter cost
+  `rule:frame-balanced` fell in the last third of an episode, docs/frontier.md).
+  A team on a synchronised plan (the plan observation's brains, the frame
+  rules) knows better: every robot computes the same steps left K from the
+  same poses, and after K steps every robot rests on its slot, the slots at
+  least the pattern spacing apart. So its horizon is ``min(tau, K dt)``
+  (:func:`landing`, ``OrcaParams.landing``): both robots of a pair use the same
+  one, so the reciprocal guarantee holds up to the landing, and the horizon
+  never falls below dt, which keeps the guarantee for the next step. A robot
+  whose brain leaves the plan meets a K that does not fall and keeps its
+  longer horizon. Measured (``benchmarks/frontier.py``, 20 cases up to 50
+  robots): ``rule:frame-balanced`` behind the filter 1.160 -> 1.070 of the
+  steps lower bound and 1.109 -> 1.081 of the travel one (1.066 / 1.081
+  without any filter), no collision.
+* **Infeasible crowds.** When the half-planes leave no velocity within the
+  speed circle, RVO2's third linear program picks the velocity that violates
+  them least; the 2R guarantee is then lost. In dense random crowds (30
+  robots in 3 m x 3 m) centres were seen to dip to about 0.19 m; up to 20
+  robots in 3 m x 3 m they stayed above 0.2 m.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from runtime.core.orca import CHANGE_TOL_MPS, OrcaFilter, clamp_speed
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+__all__ = [
+    "FilterResult",
+    "OrcaFilter",
+    "OrcaParams",
+    "clamp_speed",
+    "landing",
+    "make_filter",
+    "orca_filter",
+]
+
+Vec2 = tuple[float, float] | Sequence[float] | npt.NDArray[np.floating]
+Vec2s = Sequence[Sequence[float]] | npt.NDArray[np.floating]
+"""k 2-vectors, one a row (k x 2): neighbours' relative positions or velocities."""
+
+
+@dataclass(frozen=True)
+class OrcaParams:
+    """Tuning of the ORCA filter. Units are in the names (s, m, rad)."""
+
+    time_horizon_s: float = 0.75
+    """ORCA tau for other robots: avoid collisions this far ahead. 0.75 s with a
+    2 cm margin is the least-cost point of a measured sweep that keeps 2R, no
+    collision and no stalled crowd (``benchmarks/orca_sweep.py``, docs/frontier.md)."""
+    radius_margin_m: float = 0.02
+    """Added to R: the pair's combined radius is ``2 * (R + margin)``."""
+    max_neighbours: int = 10
+    """Only the nearest this many neighbours in range are considered."""
+    neighbour_dist_m: float = 2.0
+    """Neighbours whose centre is this far or farther are ignored."""
+    keep_right_rad: float = 0.2
+    """Clockwise rotation of the preferred velocity when it violates an ORCA
+    constraint (deadlock breaking, see the module docstring). 0 disables it."""
+    landing: bool = True
+    """For a team on a synchronised plan (plan brains, frame rules), the horizon is
+    at most the plan's time left, ``K dt`` (see "Landing" in the module docstring
+    and :func:`landing`)."""
+
+
+def landing(params: OrcaParams, steps_left: float | None,
+            world: WorldConfig = DEFAULT_WORLD) -> float:
+    """The filter's time horizon (s) for a team whose plan has ``steps_left`` (K) steps to go.
+
+    With ``params.landing`` it is ``min(time_horizon_s, max(K, 1) dt)``: every
+    robot of the team computes the same K from the same poses, and after K steps
+    all of them rest on their slots. ``steps_left`` None (a brain without a plan)
+    keeps ``time_horizon_s``.
+    """
+    if steps_left is None or not params.landing:
+        return params.time_horizon_s
+    horizon = max(float(steps_left), 1.0) * world.dt_s
+    return horizon if horizon < params.time_horizon_s else params.time_horizon_s
+
+
+def make_filter(params: OrcaParams | None, world: WorldConfig = DEFAULT_WORLD) -> OrcaFilter:
+    """The filter these settings describe, with its own scratch (one per robot or batch).
+    ``params`` None: no filter, only the speed clamp (no neighbour is ever considered)."""
+    p = OrcaParams(max_neighbours=0) if params is None else params
+    combined = 2.0 * (world.radius_m + p.radius_margin_m)
+    return OrcaFilter(p.max_neighbours, p.neighbour_dist_m, combined, world.dt_s,
+                      p.keep_right_rad, world.v_max_mps)
+
+
+@dataclass
+class FilterResult:
+    """Outcome of :func:`orca_filter` for one robot."""
+
+    velocity: tuple[float, float]
+    """The safe velocity (m/s), norm <= v_max."""
+    changed: bool
+    """True if ``velocity`` differs from the preferred velocity by > 1e-9 m/s
+    (or the preferred velocity was not finite)."""
+    change_mps: float
+    """Norm of (safe - preferred), preferred taken as 0 where not finite."""
+
+
+def orca_filter(
+    pref_vel: Vec2,
+    own_vel: Vec2,
+    rel_pos: Vec2s,
+    nb_vel: Vec2s,
+    *,
+    world: WorldConfig = DEFAULT_WORLD,
+    params: OrcaParams = OrcaParams(),  # frozen dataclass: a safe default
+) -> FilterResult:
+    """The ORCA-safe velocity closest to one robot's preferred velocity, from its own view.
+
+    Args:
+        pref_vel: the brain's desired velocity (vx, vy), m/s. NaN/inf -> zero.
+        own_vel: the robot's current velocity (vx, vy), m/s, as its neighbours
+            see it (e.g. last executed command or frame difference / dt).
+            NaN/inf -> zero.
+        rel_pos: shape (k, 2), m: neighbours' positions minus own position.
+            k may be 0. Rows farther than ``params.neighbour_dist_m`` or not
+            finite are ignored; of the rest the nearest
+            ``params.max_neighbours`` are used.
+        nb_vel: shape (k, 2), m/s: neighbours' absolute velocities, row for
+            row with ``rel_pos`` (NaN/inf rows -> zero).
+        world: the world's constants (R, v_max, dt).
+        params: ORCA tuning.
+
+    Returns:
+        A :class:`FilterResult`; its velocity has norm <= ``world.v_max_mps``.
+    """
+    px, py = float(pref_vel[0]), float(pref_vel[1])
+    pref_ok = math.isfinite(px) and math.isfinite(py)
+    if not pref_ok:
+        px = py = 0.0
+    rel = np.asarray(rel_pos, dtype=np.float64).reshape(-1, 2)
+    pos = np.zeros((1, len(rel) + 1, 2))
+    pos[0, 1:] = rel
+    vel = np.zeros_like(pos)
+    vel[0, 0] = np.asarray(own_vel, dtype=np.float64).reshape(2)
+    vel[0, 1:] = np.asarray(nb_vel, dtype=np.float64).reshape(-1, 2)
+    vx, vy, _, _ = make_filter(params, world).robot(0, 0, pos, vel, px, py, params.time_horizon_s)
+    change = math.hypot(vx - px, vy - py)  # from the preference as given, not as clamped
+    return FilterResult(velocity=(vx, vy), changed=(not pref_ok) or change > CHANGE_TOL_MPS,
+                        change_mps=change)

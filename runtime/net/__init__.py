@@ -1,0 +1,3 @@
+"""The network: opening Zenoh sessions with their options, and a swarm identity (mutual
+TLS and Zenoh access control).
+"""

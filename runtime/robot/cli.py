@@ -1,0 +1,217 @@
+"""``patternrl robot`` options: their definitions and their checks."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass
+
+from runtime.brain.signing import TrustedKeys, default_trust
+from runtime.decision.patterns import PatternError, make_pattern
+from runtime.decision.safety import OrcaParams
+from runtime.errors import InputError
+from runtime.net.session import add_zenoh_arguments
+from runtime.wire import keys
+from runtime.world_config import WorldConfig
+
+__all__ = ["RobotConfig", "add_arguments", "config_from_args"]
+
+
+@dataclass
+class RobotConfig:
+    """How one robot runs (``patternrl robot`` options; times in seconds)."""
+
+    swarm: str
+    robot_id: int
+    mode: str = "lockstep"
+    rate_hz: float = 10.0
+    lockstep_deadline_s: float = 0.02
+    watchdog_s: float = 1.0
+    stale_s: float = 1.0
+    exit_after_silence_s: float = 0.0
+    status_period_s: float = 1.0
+    pattern: str | None = None
+    world_timeout_s: float = 30.0
+    trust: TrustedKeys | None = None
+    """Keys a brain must be signed by (None: unchecked, for embedding and tests)."""
+    debug_delay_ms: float = 0.0
+    """Testing only: each command goes out after a random extra delay in [0, this] ms
+    (seeded by the robot id), to check that late commands never make the swarm unsafe."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Every option of ``patternrl robot``."""
+    parser.epilog = (
+        "environment: ZENOH_RUNTIME sets Zenoh's threads (default here: one); the start line "
+        "says whether the decision runs compiled (runtime/core, built at install)"
+    )
+    parser.add_argument("--swarm", required=True, help="swarm name ([A-Za-z0-9_-]+)")
+    parser.add_argument("--id", type=int, required=True, help="this robot's id (>= 0)")
+    parser.add_argument(
+        "--brain", required=True, help="a brain: path to .onnx (manifest beside it) or rule:assign"
+    )
+    parser.add_argument(
+        "--mode", choices=("lockstep", "realtime"), default="lockstep", help="(default lockstep)"
+    )
+    parser.add_argument(
+        "--rate-hz",
+        type=float,
+        default=None,
+        help="realtime decision rate from per-robot pose keys (default 1/dt = 10); with the "
+        "world's all-poses message the robot decides on each step as it arrives",
+    )
+    parser.add_argument(
+        "--pattern",
+        default=None,
+        help="target until the swarm's pattern key says otherwise: built-in name or file",
+    )
+    parser.add_argument(
+        "--lockstep-deadline-s",
+        type=float,
+        default=0.02,
+        help="decide step t this long after its first pose even if poses are missing",
+    )
+    parser.add_argument(
+        "--watchdog-s", type=float, default=1.0, help="hold still after this long without poses"
+    )
+    parser.add_argument(
+        "--stale-s", type=float, default=1.0, help="a peer's pose older than this is absent"
+    )
+    parser.add_argument(
+        "--exit-after-silence-s",
+        type=float,
+        default=0.0,
+        help="exit (code 0) once the world has been silent this long (0: never)",
+    )
+    parser.add_argument(
+        "--world-timeout-s",
+        type=float,
+        default=30.0,
+        help="once the world was heard, exit (code 1, one line) when it is silent this long "
+        "(default 30; 0: never)",
+    )
+    parser.add_argument(
+        "--trust",
+        action="append",
+        default=[],
+        metavar="KEY.pub",
+        help="run brains signed by this public key, or by any *.pub of a directory "
+        "(repeatable); the release key and your own key are always trusted",
+    )
+    parser.add_argument("--status-period-s", type=float, default=1.0, help=argparse.SUPPRESS)
+    parser.add_argument("--debug-delay-ms", type=float, default=0.0, help=argparse.SUPPRESS)
+    g = parser.add_argument_group("safety filter (ORCA)")
+    d = OrcaParams()
+    g.add_argument("--safety", choices=("orca", "off"), default="orca", help="(default orca)")
+    g.add_argument(
+        "--orca-time-horizon-s",
+        type=float,
+        default=d.time_horizon_s,
+        help=f"avoid collisions this far ahead (default {d.time_horizon_s})",
+    )
+    g.add_argument(
+        "--orca-radius-margin-m",
+        type=float,
+        default=d.radius_margin_m,
+        help=f"added to R for the filter (default {d.radius_margin_m})",
+    )
+    g.add_argument(
+        "--orca-max-neighbours",
+        type=int,
+        default=d.max_neighbours,
+        help=f"nearest neighbours considered (default {d.max_neighbours})",
+    )
+    g.add_argument(
+        "--orca-neighbour-dist-m",
+        type=float,
+        default=d.neighbour_dist_m,
+        help=f"neighbours farther are ignored (default {d.neighbour_dist_m})",
+    )
+    g.add_argument(
+        "--orca-keep-right-rad",
+        type=float,
+        default=d.keep_right_rad,
+        help=f"deadlock breaking turn, 0 = plain RVO2 (default {d.keep_right_rad})",
+    )
+    g.add_argument(
+        "--orca-no-landing",
+        action="store_true",
+        help="keep the full horizon at the end of a plan too (default: a team on a "
+        "synchronised plan filters with the plan's time left when it is shorter)",
+    )
+    add_zenoh_arguments(parser)
+    lg = parser.add_argument_group("logging")
+    lg.add_argument("--json-logs", action="store_true", help="one JSON object per log line")
+    lg.add_argument("-v", "--verbose", action="store_true", help="debug events too")
+
+
+def config_from_args(
+    args: argparse.Namespace, world: WorldConfig
+) -> tuple[RobotConfig, OrcaParams | None]:
+    """The robot's config and safety filter (None: off) from the parsed options.
+
+    Raises :class:`InputError` with a one-line reason for a bad option.
+    """
+    try:
+        keys.validate_swarm(args.swarm)
+    except ValueError as e:
+        raise InputError(str(e)) from None
+    if args.id < 0:
+        raise InputError(f"--id must be >= 0, got {args.id}")
+    rate = args.rate_hz if args.rate_hz is not None else 1.0 / world.dt_s
+    for name, v in (
+        ("--rate-hz", rate),
+        ("--watchdog-s", args.watchdog_s),
+        ("--stale-s", args.stale_s),
+        ("--status-period-s", args.status_period_s),
+        ("--orca-time-horizon-s", args.orca_time_horizon_s),
+        ("--orca-neighbour-dist-m", args.orca_neighbour_dist_m),
+    ):
+        if not (math.isfinite(v) and v > 0):
+            raise InputError(f"{name} must be a positive number, got {v}")
+    for name, v in (
+        ("--lockstep-deadline-s", args.lockstep_deadline_s),
+        ("--exit-after-silence-s", args.exit_after_silence_s),
+        ("--world-timeout-s", args.world_timeout_s),
+        ("--orca-radius-margin-m", args.orca_radius_margin_m),
+        ("--debug-delay-ms", args.debug_delay_ms),
+    ):
+        if not (math.isfinite(v) and v >= 0):
+            raise InputError(f"{name} must be >= 0, got {v}")
+    if args.orca_max_neighbours < 1:
+        raise InputError("--orca-max-neighbours must be >= 1")
+    if args.pattern is not None:
+        try:
+            make_pattern(args.pattern, 4, world)  # readable and well-formed
+        except PatternError as e:
+            # a pattern fine for the real team may be too dense for 4: only reject unreadable
+            if "closer than 2R" not in str(e):
+                raise InputError(str(e)) from None
+    safety = (
+        None
+        if args.safety == "off"
+        else OrcaParams(
+            time_horizon_s=args.orca_time_horizon_s,
+            radius_margin_m=args.orca_radius_margin_m,
+            max_neighbours=args.orca_max_neighbours,
+            neighbour_dist_m=args.orca_neighbour_dist_m,
+            keep_right_rad=args.orca_keep_right_rad,
+            landing=not args.orca_no_landing,
+        )
+    )
+    cfg = RobotConfig(
+        swarm=args.swarm,
+        robot_id=args.id,
+        mode=args.mode,
+        rate_hz=rate,
+        lockstep_deadline_s=args.lockstep_deadline_s,
+        watchdog_s=args.watchdog_s,
+        stale_s=args.stale_s,
+        exit_after_silence_s=args.exit_after_silence_s,
+        status_period_s=args.status_period_s,
+        pattern=args.pattern,
+        world_timeout_s=args.world_timeout_s,
+        trust=default_trust(args.trust),
+        debug_delay_ms=args.debug_delay_ms,
+    )
+    return cfg, safety

@@ -1,0 +1,465 @@
+"""``patternrl robot``: one robot's process. Observe peers over Zenoh, act with a brain.
+
+Loop (one decision at a time; Zenoh callbacks store what arrives, and the all-poses
+callback decides its step at once on Zenoh's thread when nothing else is pending -- see
+:meth:`Robot._decide_here` -- else the loop's thread does):
+
+* **lockstep** (default): the robot decides for step t as soon as it holds the
+  poses of step t of all ``Pose.n_live`` live robots, or when
+  ``--lockstep-deadline-s`` has passed since the first pose of step t (then
+  with the freshest poses it has; peers older than ``--stale-s`` are absent).
+  One command per step, stamped with the step.
+* **realtime**: at ``--rate-hz`` with the latest poses; peers whose pose is
+  older than ``--stale-s`` are absent.
+
+With the world's poses of a step in one message (``patternrl/<swarm>/poses``,
+what ``patternrl sim`` sends), both modes decide on each new step as soon as
+its message arrives, on the newest step only (:mod:`runtime.robot.inbox`).
+
+Late never means unsafe: a command carries the step whose poses it was decided
+from, and the world applies it to that step only; a command that misses its
+step's deadline is discarded and the robot holds still for that step (the
+world's rule, :mod:`sim_bridge.world.world_link`). A slow robot therefore costs
+progress, never separation.
+
+Nothing waits on another robot's decision. Every decision goes through the
+:class:`runtime.decision.controller.Controller`: shared assignment, the observation the
+brain's spec names, the brain, clamp to v_max, the ORCA safety filter.
+
+Faults (DESIGN.md section 4): a malformed message on any key is dropped and
+counted; a brain that outputs NaN/inf makes the robot hold still (counted as an
+error); when no pose arrives for ``--watchdog-s`` the robot publishes a zero
+command once and stops acting until poses return; with
+``--exit-after-silence-s S`` it exits (code 0) once the world it had heard has
+been silent S seconds.
+
+Brain swap: a :class:`runtime.wire.messages.BrainMsg` on the swarm's brain key,
+addressed to this robot (or to all), is decoded and validated on a background
+thread (digest, onnxruntime load, input/output shapes, finite outputs on
+probes, warm-up) and swapped in between two steps; the answer is a status
+with ``swap_request_id``, ``swap_accepted``, ``swap_reason`` and the old and
+new brain ids, published at once. A refused brain leaves the old one running.
+A manifest ``{"rule": "rule:assign"}`` with no ONNX bytes swaps in a rule brain.
+
+Status: about once a second on the robot's status key (decision latency p50 and
+p99 over the last period, loop jitter = p99 - p50 of the interval between
+consecutive decisions, messages dropped, errors, safety interventions).
+
+The pieces (the robot holds them; its loop reads observe -> decide -> send):
+:class:`runtime.robot.inbox.PoseInbox` (poses in, lockstep/realtime readiness, stale
+peers), :class:`runtime.decision.team_pattern.TeamPattern` (which target),
+:class:`runtime.robot.swap_worker.SwapWorker` (brain swaps),
+:class:`runtime.robot.status.RobotStats` (status figures), the options in
+:mod:`runtime.robot.cli`.
+
+Brains must be signed (:mod:`runtime.brain.signing`) by a key the robot trusts: the
+project's release key, the user's own key and every ``--trust`` key; a brain
+file or swap without such a signature is refused (rule brains need none).
+
+Exit codes: 0 on SIGINT/SIGTERM or ``--exit-after-silence-s``; 2 on bad input
+(missing, invalid or untrusted brain, bad pattern, bad options), with one line
+on stderr; 1 when the world is gone (``--world-timeout-s``) or on an
+unexpected failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import random
+import signal
+import sys
+import threading
+import time
+from types import FrameType
+from typing import Final
+
+import zenoh
+
+from runtime.brain.brain import Brain, BrainError, load_brain, short_id
+from runtime.core import kernel_status
+from runtime.decision.controller import Controller
+from runtime.decision.patterns import PatternError
+from runtime.decision.pipeline import Decision
+from runtime.decision.safety import OrcaParams
+from runtime.decision.team_pattern import TeamPattern
+from runtime.errors import InputError
+from runtime.log import Log, one_line
+from runtime.net.session import ZenohSetupError, direct, open_session_from_args
+from runtime.robot.cli import RobotConfig, add_arguments, config_from_args
+from runtime.robot.inbox import PoseInbox, Step
+from runtime.robot.status import RobotStats
+from runtime.robot.swap_worker import SwapReply, SwapWorker
+from runtime.wire import keys
+from runtime.wire.messages import (
+    Command,
+    MessageError,
+    decode_pattern,
+    encode_command,
+    encode_status,
+)
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+# add_arguments and run: the sub-command interface patternrl.cli loads from this module
+__all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
+
+
+HEAVY_MODULES: Final = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
+IDLE_WAKE_S: Final = 0.2  # the loop looks at status, watchdog and stop at least this often
+ROBOT_ZENOH_RUNTIME: Final = (
+    "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
+    "acc: (handover: app), net: (handover: app))"
+)
+"""Zenoh's runtimes in a robot process (``ZENOH_RUNTIME``, unless set): one thread for all
+of them. A robot has one link, one subscription that matters and one publisher; Zenoh's
+default gives it five threads (app, acc, tx, rx x2) that hand every message from one to
+the next, each hand-over a wake-up. Measured side by side (``benchmarks/compare.py ...
+swarm_scale.py``, load 40-55): lockstep 10 robots 149 -> 204 steps/s, CPU per robot-step
+0.64 -> 0.43 ms; realtime 100 robots 9.5 % -> 5.5 % of decisions late; 12 -> 8 threads."""
+
+
+def heavy_modules() -> list[str]:
+    """The heavy packages this process has loaded (a robot should have none)."""
+    return [m for m in HEAVY_MODULES if m in sys.modules]
+
+
+def _still(why: str) -> Decision:
+    """Hold still, saying why."""
+    return Decision((0.0, 0.0), (0.0, 0.0), False, 0.0, 0.0, why)
+
+
+class Robot:
+    """One robot: Zenoh in and out around a :class:`Controller`, and its loop."""
+
+    def __init__(
+        self,
+        cfg: RobotConfig,
+        brain: Brain,
+        session: zenoh.Session,
+        world: WorldConfig = DEFAULT_WORLD,
+        safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
+        log: Log | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.world = world
+        self.session = session
+        self.id = cfg.robot_id
+        self.log = log if log is not None else Log(f"robot {cfg.robot_id}", False)
+        self.controller = Controller(brain, world, safety)
+        self.stats = RobotStats()
+        self.inbox = PoseInbox(
+            self.id,
+            cfg.swarm,
+            realtime=cfg.mode == "realtime",
+            rate_hz=cfg.rate_hz,
+            lockstep_deadline_s=cfg.lockstep_deadline_s,
+            stale_s=cfg.stale_s,
+            log=self.log,
+            drop=self._drop,
+            on_restart=lambda: self.pattern.world_restarted(),
+        )
+        self.pattern = TeamPattern(cfg.pattern, world, self.log)
+        self.pattern.use_brain(brain)
+        self.swaps = SwapWorker(
+            self.id,
+            world,
+            self.log,
+            wake=self.inbox.cond,
+            team_size=lambda: len(self._team_ids),
+            drop=self._drop,
+            error=self.stats.error,
+            trust=cfg.trust,
+        )
+        self._stop = threading.Event()
+        # held by whoever decides, swaps or holds: the loop, or a pose callback (_decide_here)
+        self._loop_lock = threading.Lock()
+        self._team_ids: list[int] = []  # the team of the last decision
+        self._holding = False
+        self._first_cmd_logged = False
+        self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
+        self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
+        self._pose_sub: zenoh.Subscriber[None] | None = None
+
+    # ------------------------------------------------------------- lifecycle
+
+    def start(self) -> None:
+        """Declare publishers, subscribers and the liveliness token; start the swap worker."""
+        s, sw, z = self.session, self.cfg.swarm, self._zenoh
+        self._cmd_pub = z.enter_context(
+            s.declare_publisher(keys.cmd_key(sw, self.id), express=True)
+        )
+        self._status_pub = z.enter_context(
+            s.declare_publisher(keys.status_key(sw, self.id), express=True)
+        )
+        z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
+        # per-robot poses until the first all-poses message (then undeclared: O(1) a step)
+        self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
+        z.callback(self._drop_pose_keys)
+        z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
+        z.enter_context(s.declare_subscriber(keys.brain_key(sw), self._on_brain))
+        z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
+        self.swaps.start()
+        z.callback(self.swaps.close)
+        try:  # the latest pattern, if someone (the world) answers queries on it
+            s.get(keys.pattern_key(sw), self._on_pattern_reply, timeout=2.0)
+        except zenoh.ZError as e:  # a query nobody can answer is not an error
+            self.log("debug", "pattern_query", str(e))
+        self._publish_status()
+
+    def stop(self) -> None:
+        """Ask the loop to end (within IDLE_WAKE_S); safe from a signal handler."""
+        self._stop.set()
+
+    def close(self) -> None:
+        """Stop the swap worker, undeclare everything declared (the session is the caller's)."""
+        self._stop.set()
+        self._zenoh.close()
+
+    # ------------------------------------------------------------- callbacks
+
+    def _drop(self, what: str, why: str) -> None:
+        self.stats.drop()
+        self.log("debug", "dropped", f"{what}: {one_line(why, 160)}")
+
+    def _on_pose(self, sample: zenoh.Sample) -> None:
+        self.inbox.take(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _drop_pose_keys(self) -> None:
+        sub, self._pose_sub = self._pose_sub, None
+        if sub is not None:
+            sub.undeclare()  # type: ignore[no-untyped-call]
+
+    def _on_poses(self, sample: zenoh.Sample) -> None:
+        if self.inbox.take_batch(sample.payload.to_bytes(), notify=False):
+            if not self._decide_here():
+                self.inbox.wake()
+
+    def _decide_here(self) -> bool:
+        """Decide and send the step just received, on Zenoh's thread: no hand-over to the
+        loop's thread, whose wake-up per step cost more than the decision in a 100-robot
+        swarm. Only in the plain case -- poses in one message, not holding, no swap
+        waiting, no testing delay, the loop not busy -- else False and the loop does it."""
+        if self._pose_sub is not None or self.cfg.debug_delay_ms > 0:
+            return False
+        if not self._loop_lock.acquire(blocking=False):
+            return False
+        try:
+            if self._holding or self._stop.is_set() or self.swaps.busy():
+                return False
+            step = self.inbox.take_ready()
+            if step is None:
+                return False
+            try:
+                self._send(step.step, self._decide(step))
+            except Exception as e:  # never a traceback on Zenoh's thread: the step is lost
+                self.stats.error(f"send: {one_line(f'{type(e).__name__}: {e}', 160)}")
+            return True
+        finally:
+            self._loop_lock.release()
+
+    def _on_pattern(self, sample: zenoh.Sample) -> None:
+        self._take_pattern(sample.payload.to_bytes())
+
+    def _on_pattern_reply(self, reply: zenoh.Reply) -> None:
+        ok = reply.ok
+        if ok is not None:
+            self._take_pattern(ok.payload.to_bytes())
+
+    def _take_pattern(self, payload: bytes) -> None:
+        try:
+            self.pattern.offer(decode_pattern(payload))
+        except (MessageError, PatternError) as e:  # sizes, values, then meaning
+            self._drop("pattern", str(e))
+        except Exception as e:  # whatever arrives, never a traceback on Zenoh's thread
+            self._drop("pattern", f"{type(e).__name__}: {e}")
+
+    def _on_brain(self, sample: zenoh.Sample) -> None:
+        self.swaps.offer(sample.payload.to_bytes())
+
+    # ------------------------------------------------------------------ loop
+
+    def run(self) -> int:
+        """The control loop; returns the exit code once stopped."""
+        period = self.cfg.status_period_s
+        next_status = time.monotonic() + period
+        while not self._stop.is_set():
+            with self._loop_lock:
+                for reply in self.swaps.apply(self._brain_id, self._install):  # between steps
+                    self._publish_status(reply)
+                now = time.monotonic()
+                if now >= next_status:
+                    self._publish_status()
+                    self.stats.new_period()
+                    next_status = now + period
+                code = self._watch(now)
+            if code is not None:
+                return code
+            wake_by = min(next_status, now + IDLE_WAKE_S)
+            step = self.inbox.next_step(now, wake_by, self._holding, self.swaps.busy)  # observe
+            if step is None:
+                continue
+            with self._loop_lock:
+                if self._pose_sub is not None and self.inbox.batches:
+                    self._drop_pose_keys()  # the world sends all poses in one message
+                decision = self._decide(step)  # decide
+                if self.cfg.debug_delay_ms > 0:  # testing only: a slow robot, on purpose
+                    time.sleep(self._delay_rng.uniform(0.0, self.cfg.debug_delay_ms) / 1000.0)
+                self._send(step.step, decision)  # send
+        return 0
+
+    def _watch(self, now: float) -> int | None:
+        """The watchdog: hold still without poses, resume with them; an exit code on silence."""
+        cfg = self.cfg
+        silent = self.inbox.silence_s(now)
+        if silent is None:
+            return None
+        if silent > cfg.watchdog_s and not self._holding:
+            self._hold_still(f"no pose for {silent:.1f} s, holding still")
+        elif silent <= cfg.watchdog_s and self._holding:
+            self._holding = False
+            self.log("info", "resume", "poses are back")
+        if cfg.exit_after_silence_s > 0 and silent > cfg.exit_after_silence_s:
+            self.log("info", "exit", f"world silent for {silent:.1f} s")
+            return 0
+        if cfg.world_timeout_s > 0 and silent > cfg.world_timeout_s:
+            self.log("error", "exit", f"the world is gone: no pose for {silent:.1f} s "
+                     f"(--world-timeout-s {cfg.world_timeout_s:g}), exiting")
+            return 1
+        return None
+
+    def _decide(self, step: Step) -> Decision:
+        n = len(step.ids)
+        if step.ids != self._team_ids:
+            if self._team_ids:
+                self.log("info", "team", f"{len(self._team_ids)} -> {n} robots")
+            self.controller.reset()
+            self._team_ids = step.ids
+        pattern, why = self.pattern.for_team(n)
+        if pattern is None:
+            d = _still(why)
+        else:
+            try:
+                d = self.controller.decide(
+                    step.ids.index(self.id), step.positions, pattern, step.step
+                )
+            except Exception as e:  # whatever arrives, the loop goes on, holding still
+                self.controller.reset()
+                d = _still(f"decision failed: {e}")
+        if d.error:
+            if d.error != self.stats.last_error:
+                self.log("warning", "hold", d.error, step=step.step)
+            self.stats.error(d.error, count=pattern is not None)  # no pattern yet: no error
+        return d
+
+    def _send(self, step: int, d: Decision) -> None:
+        self._publish_cmd(step, d)
+        t = self.stats.decided(step, d.decision_us, d.safety_changed)
+        if not self._first_cmd_logged:
+            self._first_cmd_logged = True
+            since = round(t - self.stats.t_start, 3)
+            self.log("debug", "first_command", step=step, since_start_s=since)
+
+    def _hold_still(self, why: str) -> None:
+        self._holding = True
+        self.controller.reset()
+        self._team_ids = []
+        self.stats.error(f"watchdog: {why}", count=False)
+        self.log("warning", "watchdog", why)
+        self._publish_cmd(max(self.stats.last_step, 0), _still(why))
+
+    def _brain_id(self) -> str:
+        return self.controller.brain.brain_id
+
+    def _install(self, brain: Brain) -> None:
+        self.controller.set_brain(brain)
+        self.pattern.use_brain(brain)
+
+    def _publish_cmd(self, step: int, d: Decision) -> None:
+        bvx, bvy = d.brain_velocity
+        if not (math.isfinite(bvx) and math.isfinite(bvy)):  # the robot held still
+            bvx, bvy = d.velocity
+        cmd = Command(
+            robot_id=self.id,
+            step=step,
+            vx=d.velocity[0],
+            vy=d.velocity[1],
+            brain_id=self.controller.brain.brain_id[:64],
+            safety_changed=d.safety_changed,
+            safety_change_mps=d.safety_change_mps if math.isfinite(d.safety_change_mps) else 0.0,
+            decision_us=d.decision_us,
+            brain_vx=bvx,
+            brain_vy=bvy,
+        )
+        self._cmd_pub.put(encode_command(cmd))
+
+    def _publish_status(self, reply: SwapReply | None = None) -> None:
+        status = self.stats.status(self.id, self.controller.brain.brain_id, reply)
+        try:
+            self._status_pub.put(encode_status(status))
+        except MessageError as e:
+            self.stats.error(f"status: {e}")
+
+
+# ------------------------------------------------------------------ process
+
+
+def run(args: argparse.Namespace) -> int:
+    """``patternrl robot``: check the options, load the brain, run until a signal or silence."""
+    world = DEFAULT_WORLD
+    log = Log(f"robot {args.id}", args.json_logs, "debug" if args.verbose else "info")
+    try:
+        cfg, safety = config_from_args(args, world)
+        brain = load_brain(args.brain, world, cfg.trust)
+    except (InputError, BrainError) as e:
+        print(f"patternrl robot: error: {one_line(str(e))}", file=sys.stderr)
+        return 2
+    sys.setswitchinterval(0.001)  # a validating swap thread yields the GIL quickly
+    os.environ.setdefault("ZENOH_RUNTIME", ROBOT_ZENOH_RUNTIME)  # before the first session
+    stop = threading.Event()
+    robot_ref: list[Robot] = []
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+        if robot_ref:
+            robot_ref[0].stop()
+
+    old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            session = open_session_from_args(args, "robot", cfg.swarm)
+        except ZenohSetupError as e:
+            print(f"patternrl robot: error: {e}", file=sys.stderr)
+            return 2
+        # the robot undeclares what it declared, then the session closes
+        with session, contextlib.closing(Robot(cfg, brain, session, world, safety, log)) as robot:
+            robot_ref.append(robot)
+            if stop.is_set():
+                return 0
+            robot.start()
+            log(
+                "info",
+                "start",
+                f"swarm {cfg.swarm}, {cfg.mode}, brain {short_id(brain.brain_id)} "
+                f"({brain.spec.name}), safety {'orca' if safety else 'off'}, "
+                f"decision {kernel_status()}",
+            )
+            code = robot.run()
+        heavy = heavy_modules()
+        st = robot.stats
+        log(
+            "info",
+            "stop",
+            f"after {st.steps} steps",
+            dropped=st.dropped,
+            errors=st.errors,
+            heavy_modules=",".join(heavy) if heavy else "none",
+        )
+        return code
+    except Exception as e:  # unexpected: one line, no traceback
+        print(f"patternrl robot: error: {one_line(f'{type(e).__name__}: {e}')}", file=sys.stderr)
+        return 1
+    finally:
+        for s, h in old_handlers.items():
+            signal.signal(s, h)

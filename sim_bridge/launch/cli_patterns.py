@@ -1,0 +1,86 @@
+"""``patternrl patterns``: list the built-ins, or draw one to check a pattern file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from runtime.decision.patterns import PatternError, describe_builtins, make_pattern, min_spacing
+from runtime.world_config import DEFAULT_WORLD
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    sub.add_parser("list", help="list the built-in patterns")
+    show = sub.add_parser(
+        "show", help="print a pattern's points (and draw it with --out)",
+        description="Resample a built-in or a pattern file to N robots and show it.",
+    )
+    show.add_argument("pattern", help="a built-in name (see 'list') or a CSV/JSON file of points")
+    show.add_argument("--robots", type=int, default=10, help="team size N (default 10)")
+    show.add_argument("--out", type=Path, help="draw the targets with their 2R discs to this PNG")
+    for q in (p, show):
+        q.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.action == "list":
+        d = describe_builtins()
+        if args.json:
+            print(json.dumps(d))
+        else:
+            for name, doc in d.items():
+                print(f"{name:<10} {doc}")
+        return 0
+    try:
+        pts = make_pattern(args.pattern, args.robots)
+    except PatternError as e:
+        print(f"patternrl patterns: {e}", file=sys.stderr)
+        return 2
+    info = {
+        "pattern": args.pattern,
+        "robots": args.robots,
+        "min_spacing_m": round(min_spacing(pts), 4),
+        "extent_m": [round(float(v), 3) for v in pts.max(0) - pts.min(0)],
+        "points": pts.round(4).tolist(),
+    }
+    if args.out is not None:
+        _draw(pts, args.out, f"{args.pattern} ({args.robots} robots)")
+        info["png"] = str(args.out)
+    if args.json:
+        print(json.dumps(info))
+    else:
+        print(f"{args.pattern}: {args.robots} points, closest pair {info['min_spacing_m']} m, "
+              f"extent {info['extent_m'][0]} x {info['extent_m'][1]} m")
+        for i, (x, y) in enumerate(pts):
+            print(f"  {i:>3}  {x:8.3f} {y:8.3f}")
+        if args.out is not None:
+            print(f"drawn to {args.out}")
+    return 0
+
+
+def _draw(pts: object, out: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.patches import Circle
+
+    p = np.asarray(pts)
+    fig, ax = plt.subplots(figsize=(5, 5))
+    for x, y in p:
+        ax.add_patch(Circle((x, y), DEFAULT_WORLD.radius_m, color="tab:blue", alpha=0.35))
+    ax.scatter(p[:, 0], p[:, 1], s=6, color="tab:red", zorder=3)
+    for i, (x, y) in enumerate(p):
+        ax.annotate(str(i), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_aspect("equal")
+    ax.margins(0.15)
+    ax.set_title(title)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120, bbox_inches="tight")
+    plt.close(fig)

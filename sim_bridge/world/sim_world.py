@@ -1,0 +1,352 @@
+"""The pymunk world over Zenoh, playing a sequence of patterns: :class:`SimWorld`.
+
+The world owns the truth (where every robot is) and the clock. Each step it
+
+1. publishes every live robot's :class:`~runtime.wire.messages.Pose` (step, position,
+   velocity over the last step, ``n_live``) on ``patternrl/<swarm>/robot/<id>/pose``;
+2. collects the robots' :class:`~runtime.wire.messages.Command` for that step
+   (:meth:`sim_bridge.world.world_link.WorldLink.exchange`):
+
+   * ``lockstep`` (default, reproducible): until every live robot has answered or
+     ``step_deadline_ms`` has passed; a robot that has not answered holds still
+     for the step and is counted (``deadline_miss``); an answer that comes late
+     is dropped and counted, and nothing ever waits longer than the deadline;
+   * ``realtime``: one step every ``1 / rate_hz`` seconds on a fixed schedule
+     (the world's own work comes out of the period); the commands for that step
+     that arrived before its tick are applied, nothing older;
+
+   in both modes a robot whose command for the step is missing or late holds
+   still for the step (counted): a command is only ever applied to the positions
+   it was decided from (see :mod:`sim_bridge.world.world_link`);
+
+3. steps the physics (:mod:`sim_bridge.world.physics`), then measures the formation
+   against the current pattern (:mod:`sim_bridge.world.phase_tally`) and records
+   everything (:mod:`sim_bridge.world.world_log`).
+
+A pattern is **formed** when every robot is within ``world.formed_tol_m`` of its
+slot under the centred optimal assignment; the world then publishes the next
+pattern. A pattern not formed within ``max_steps`` is logged as a failure and the
+sequence goes on. The current :class:`~runtime.wire.messages.PatternMsg` is republished
+about once a second and answered to queries on the pattern key, for robots that
+join late.
+
+The world starts once ``robots`` robots are alive (or ``wait_robots_s`` has
+passed with at least two); robots that join or leave later are followed
+(:mod:`sim_bridge.world.membership`) and the pattern is resized to the live count (a
+new pattern version), which general and rule brains follow; a paper brain knows
+one team size and cannot. With ``brains`` set, each pattern's brain is swapped
+into the robots that run another one at the pattern change
+(:mod:`sim_bridge.world.brain_swaps`).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import zenoh
+
+from runtime.decision.formation import lower_bounds
+from runtime.decision.patterns import make_pattern, pattern_label
+from runtime.types import Array
+from runtime.wire.messages import PatternMsg, encode_pattern
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from sim_bridge.log.recorder import Recorder, SimTime
+from sim_bridge.world.brain_choice import BrainChoice
+from sim_bridge.world.brain_swaps import phase_brain_label, swap_brain_in
+from sim_bridge.world.membership import Membership
+from sim_bridge.world.phase_tally import PhaseTally
+from sim_bridge.world.physics import PhysicsWorld, arena_for_patterns
+from sim_bridge.world.run_results import PhaseResult, Progress, RunResult
+from sim_bridge.world.world_link import WorldLink
+from sim_bridge.world.world_log import Say, WorldLog
+
+DEFAULT_PATTERNS = "circle,cross,line,heart"
+
+
+@dataclass
+class SimConfig:
+    """Everything a run of the world needs; units in the names."""
+
+    swarm: str = "demo"
+    robots: int = 10
+    patterns: list[str] = field(default_factory=lambda: DEFAULT_PATTERNS.split(","))
+    mode: str = "lockstep"
+    seed: int = 0
+    step_deadline_ms: float = 250.0
+    first_step_deadline_ms: float = 5000.0
+    max_steps: int = DEFAULT_WORLD.step_limit
+    rate_hz: float = 1.0 / DEFAULT_WORLD.dt_s
+    brains: dict[str, BrainChoice] | None = None
+    """Brain per pattern; None leaves the robots' brains alone."""
+    wait_robots_s: float = 30.0
+    swap_timeout_s: float = 15.0
+    pattern_republish_s: float = 1.0
+    world: WorldConfig = DEFAULT_WORLD
+
+
+@dataclass
+class _Phase:
+    """One pattern being played: where it started, what it has measured."""
+
+    index: int
+    name: str
+    C: Array
+    """The pattern at the live team size, (n, 2) metres."""
+    choice: BrainChoice | None
+    lower_bound_steps: int
+    lower_bound_travel_m: float
+    start_step: int
+    late0: int
+    t_start: float
+    steps: int = 0
+    tally: PhaseTally = field(default_factory=PhaseTally)
+    brain_ids: set[str] = field(default_factory=set)
+
+    @property
+    def label(self) -> str:
+        return pattern_label(self.name)
+
+
+def _print_say(msg: str, detail: bool) -> None:
+    print(f"sim: {msg}", file=sys.stderr, flush=True)
+
+
+class SimWorld:
+    """One run of the world on an open Zenoh session."""
+
+    def __init__(
+        self,
+        cfg: SimConfig,
+        session: zenoh.Session,
+        recorder: Recorder | None = None,
+        on_progress: Callable[[Progress], None] | None = None,
+        log: Say | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.w = cfg.world
+        self.session = session
+        self.rec = recorder
+        self.on_progress = on_progress
+        self.stop_event = threading.Event()
+        self.rng = np.random.default_rng(cfg.seed)
+        self.step = 0
+        self.version = 0
+        # Time spent in steps (poses out to physics and record done), phase changes left
+        # out: wall, and CPU of the world's thread.
+        self.stepping_wall_s = 0.0
+        self.stepping_cpu_s = 0.0
+        self._tick: float | None = None  # realtime: when the current step's period began
+        self.overruns = 0
+        """realtime: steps whose tick had passed before their poses went out."""
+        patterns_at_n = [make_pattern(p, cfg.robots, self.w) for p in cfg.patterns]
+        self.arena_m = arena_for_patterns(patterns_at_n, self.w)
+        self.physics = PhysicsWorld(self.arena_m, self.w)
+        self.journal = WorldLog(recorder, self.w, self.arena_m, log or _print_say,
+                                lambda: self.step)
+        self.link = WorldLink(session, cfg.swarm, cfg.mode == "lockstep", recorder,
+                              self.journal.event)
+        self.members = Membership(self.link.roster, self.physics, self.link, self.journal,
+                                  self.rng, self.arena_m, self.w)
+        if recorder is not None and cfg.mode == "lockstep" and recorder.sim_time is None:
+            # the log's clock is the world's: a run plays back at the speed it moved
+            recorder.sim_time = SimTime(time.time_ns(), round(self.w.dt_s * 1e9),
+                                        lambda: self.step)
+
+    @property
+    def latencies_ms(self) -> list[float]:
+        """Pose-to-command latency of every command that made its step."""
+        return self.link.latencies_ms
+
+    @property
+    def decision_us(self) -> list[float]:
+        """Decision time as the robots report it, for benchmarks."""
+        return self.link.decision_us
+
+    @property
+    def malformed(self) -> int:
+        return self.link.malformed
+
+    def open(self) -> None:
+        """Declare the world on the session (done by :meth:`run` if not before)."""
+        self.link.open()
+
+    def stop(self) -> None:
+        """Stop after the current step (safe from a signal handler or another thread)."""
+        self.stop_event.set()
+        self.link.wake()
+
+    # ------------------------------------------------------------------ run
+
+    def run(self) -> RunResult:
+        """Wait for the robots, play every pattern, finish; never raises for a robot's fault."""
+        cfg = self.cfg
+        t0 = time.monotonic()
+        phases: list[PhaseResult] = []
+        outcome = "done"
+        self.open()
+        try:
+            self.journal.event(
+                "run_start", swarm=cfg.swarm, robots=cfg.robots, patterns=cfg.patterns,
+                mode=cfg.mode, seed=cfg.seed, step_deadline_ms=cfg.step_deadline_ms,
+                max_steps=cfg.max_steps, rate_hz=cfg.rate_hz, arena_m=self.arena_m,
+                world=asdict(self.w), brains={k: asdict(v) for k, v in (cfg.brains or {}).items()})
+            if not self.members.wait_for_robots(cfg.robots, cfg.wait_robots_s, self.stop_event):
+                outcome = "interrupted" if self.stop_event.is_set() else "no robots"
+            else:
+                outcome = self._play(phases)
+                if self.physics.ids:  # the final state, on the wire and on the log
+                    self.link.publish_final(self.step, self.w.dt_s, list(self.physics.ids),
+                                            self.physics.positions())
+        finally:
+            wall = time.monotonic() - t0
+            self.journal.event(
+                "run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),
+                formed=[p.formed for p in phases], malformed=self.malformed,
+                contacts_total=self.physics.contacts_total)
+            self.link.close()
+        return RunResult(phases, outcome, self.step, round(wall, 3),
+                         str(self.rec.path) if self.rec and self.rec.path else None,
+                         self.latencies_ms)
+
+    def _play(self, phases: list[PhaseResult]) -> str:
+        """Place the robots and play the patterns in turn; the outcome."""
+        self.members.place_start(self.cfg.robots)
+        outcome = "done"
+        for k, name in enumerate(self.cfg.patterns):
+            if self.stop_event.is_set():
+                break
+            phases.append(self._run_phase(k, name))
+            if len(self.physics.ids) < 2:
+                outcome = "no robots"
+                break
+        return "interrupted" if self.stop_event.is_set() else outcome
+
+    # ------------------------------------------------------------------ phases
+
+    def _run_phase(self, index: int, name: str) -> PhaseResult:
+        """Play one pattern until formed, out of steps or stopped."""
+        ph = self._start_phase(index, name)
+        while (not ph.tally.formed(self.w) and ph.steps < self.cfg.max_steps
+               and not self.stop_event.is_set()):
+            joined = self._follow_membership(ph)
+            if joined is None:
+                break
+            if not self._step(ph, first=self.step == 0 or joined > 0):
+                break
+        return self._end_phase(ph)
+
+    def _start_phase(self, index: int, name: str) -> _Phase:
+        cfg, w = self.cfg, self.w
+        t_start = time.monotonic()
+        choice = cfg.brains.get(name) if cfg.brains else None
+        if choice is not None:
+            swap_brain_in(choice, name, self.physics.ids, self.link, self.journal,
+                          cfg.swap_timeout_s)
+        C = self._publish_pattern(name, "phase")
+        pos = self.physics.positions()
+        lb_travel, lb_steps = lower_bounds(pos, C, w.v_max_mps, w.dt_s)
+        n = len(self.physics.ids)
+        self.journal.event("phase_start", phase=index, pattern=pattern_label(name), n=n,
+                           lower_bound_steps=lb_steps, lower_bound_travel_m=round(lb_travel, 6),
+                           brain=choice.label if choice else "robots' own")
+        self.journal.say(f"pattern {index + 1}/{len(cfg.patterns)}: {pattern_label(name)} with "
+                         f"{n} robots (lower bound {lb_steps} steps)", True)
+        ph = _Phase(index, name, C, choice, lb_steps, lb_travel, self.step, self.link.late,
+                    t_start)
+        ph.tally.start(pos, C)
+        return ph
+
+    def _follow_membership(self, ph: _Phase) -> int | None:
+        """Apply joins and leaves (resizing the pattern): robots joined; None when < 2 left."""
+        joined, left = self.members.apply()
+        if joined or left:
+            ph.tally.joins += joined
+            ph.tally.leaves += left
+            if len(self.physics.ids) < 2:
+                self.journal.say("fewer than 2 robots left: the phase cannot go on")
+                return None
+            ph.C = self._publish_pattern(ph.name, "resize")
+        elif time.monotonic() - self.link.pattern_sent_s >= self.cfg.pattern_republish_s:
+            self.link.put_pattern()
+        return joined
+
+    def _step(self, ph: _Phase, first: bool) -> bool:
+        """Poses out, commands in, physics, measures, record; False if stopped meanwhile."""
+        ids = list(self.physics.ids)
+        pos = self.physics.positions()
+        t_step = time.monotonic()
+        cpu_step = time.thread_time()
+        v, missed = self.link.exchange(self.step, self.w.dt_s, ids, pos,
+                                       self._deadline_s(first), self.stop_event)
+        if self.stop_event.is_set():
+            return False
+        res = self.physics.step(v)
+        self.link.moved(ids, pos)
+        self.step += 1
+        ph.steps += 1
+        m = ph.tally.step(ids, pos, res.positions, ph.C, res.new_contacts, missed, self.w)
+        brains = self.link.brains()
+        ph.brain_ids.update(brains.get(r, "") for r in ids)
+        self.journal.step_measures(m)
+        self.journal.record_step(ph.index, ph.label, self.version, ph.steps, ids,
+                                 res.positions, ph.C, m, t_step)
+        self.stepping_wall_s += time.monotonic() - t_step
+        self.stepping_cpu_s += time.thread_time() - cpu_step
+        if self.on_progress is not None:
+            self.on_progress(Progress(ph.index, len(self.cfg.patterns), ph.label, self.step,
+                                      ph.steps, m.error_m, len(ids), ph.tally.deadline_misses))
+        return True
+
+    def _deadline_s(self, first: bool) -> float:
+        """How long a step waits for commands: longer at the start and after a join."""
+        if self.cfg.mode != "lockstep":  # to the step's tick, on a fixed schedule
+            period = 1.0 / self.cfg.rate_hz
+            now = time.monotonic()
+            if self._tick is None or now > self._tick + period:
+                if self._tick is not None:
+                    self.overruns += 1
+                self._tick = now  # behind by a whole period (or the first step): start again
+            self._tick += period
+            return max(0.0, self._tick - now)
+        ms = self.cfg.first_step_deadline_ms if first else self.cfg.step_deadline_ms
+        return ms / 1000.0
+
+    def _end_phase(self, ph: _Phase) -> PhaseResult:
+        t = ph.tally
+        seen = sorted(b for b in ph.brain_ids if b)
+        formed = t.formed(self.w)
+        result = PhaseResult(
+            index=ph.index, pattern=ph.label, n_robots=len(self.physics.ids),
+            formed=bool(formed), steps=ph.steps, step_limit=self.cfg.max_steps,
+            lower_bound_steps=int(ph.lower_bound_steps), travel_m=round(t.travel_m, 6),
+            lower_bound_travel_m=round(ph.lower_bound_travel_m, 6), collisions=t.collisions,
+            contacts=t.contacts,
+            min_separation_m=(round(t.min_separation_m, 6) if math.isfinite(t.min_separation_m)
+                              else -1.0),
+            deadline_misses=t.deadline_misses, late_commands=self.link.late - ph.late0,
+            final_error_m=round(t.error_m, 6), brain=phase_brain_label(ph.choice, seen),
+            brain_ids=seen, joins=t.joins, leaves=t.leaves, start_step=ph.start_step,
+            end_step=self.step, wall_s=round(time.monotonic() - ph.t_start, 3),
+        )
+        self.journal.event("phase_end", **asdict(result))
+        verdict = "formed" if formed else "NOT formed"
+        self.journal.say(f"{ph.label}: {verdict} in {ph.steps} steps "
+                         f"(lower bound {ph.lower_bound_steps}), error {t.error_m:.3f} m")
+        return result
+
+    def _publish_pattern(self, name: str, reason: str) -> Array:
+        """A new version of the pattern at the live team size: published and logged."""
+        n = len(self.physics.ids)
+        pts = make_pattern(name, n, self.w)
+        self.version += 1
+        msg = PatternMsg(self.version, pattern_label(name), pts, self.w.formed_tol_m)
+        self.link.put_pattern(encode_pattern(msg))
+        self.journal.event("pattern", version=self.version, name=msg.name, n=n, reason=reason,
+                           points=np.round(pts, 6).tolist(), formed_tol_m=self.w.formed_tol_m)
+        return pts

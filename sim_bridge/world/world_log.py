@@ -1,0 +1,86 @@
+"""What the world tells: events, per-step metrics and scenes on the MCAP log; lines for the user.
+
+Events carry the world's step and simulated time (step x dt). Each step writes one
+``/world/metrics`` row and one Foxglove ``SceneUpdate`` (robots, the pattern's
+targets placed on the team's centroid, robots removed since the last scene).
+Without a recorder only the user's lines remain.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+from runtime.decision.formation import centred
+from runtime.types import Array
+from runtime.world_config import WorldConfig
+from sim_bridge.live.scene import scene_json
+from sim_bridge.log.recorder import Recorder
+from sim_bridge.world.phase_tally import StepMeasures
+
+Say = Callable[[str, bool], None]
+"""say(message, detail): detail lines (joins at the start, swaps) matter less."""
+
+
+class WorldLog:
+    """The world's log and its lines to the user."""
+
+    def __init__(self, recorder: Recorder | None, world: WorldConfig, arena_m: float, say: Say,
+                 clock: Callable[[], int]) -> None:
+        self.rec = recorder
+        self.w = world
+        self.arena_m = arena_m
+        """Side of the square arena drawn in scenes (metres)."""
+        self._say = say
+        self._clock = clock
+        """The world's current step."""
+        self._removed_since_scene: list[int] = []
+
+    def say(self, msg: str, detail: bool = False) -> None:
+        self._say(msg, detail)
+
+    def event(self, kind: str, **fields: Any) -> None:
+        if self.rec is not None:
+            step = self._clock()
+            self.rec.event(kind, step, step * self.w.dt_s, **fields)
+
+    def robot_removed(self, rid: int) -> None:
+        """The next scene deletes this robot's entity."""
+        self._removed_since_scene.append(rid)
+
+    def step_measures(self, m: StepMeasures) -> None:
+        """The step's events: new collisions, new contacts, robots that missed it."""
+        if m.new_collisions:
+            self.event("collision", pairs=[list(p) for p in m.new_collisions])
+        if m.new_contacts:
+            self.event("contact", pairs=[list(p) for p in m.new_contacts])
+        if m.missed:  # the step those robots did not answer in time
+            self.event("deadline_miss", robots=m.missed, for_step=self._clock() - 1)
+
+    def record_step(self, phase: int, pattern: str, version: int, phase_step: int,
+                    ids: list[int], pos: Array, C: Array, m: StepMeasures,
+                    t_step: float) -> None:
+        """The step's metrics row and scene; ``pos`` (n, 2) in ``ids`` order, ``C`` (n, 2)."""
+        if self.rec is None:
+            return
+        step = self._clock()
+        now_ns = self.rec.log_time(step)
+        self.rec.metrics({
+            "step": step, "time_s": round(step * self.w.dt_s, 6), "phase": phase,
+            "pattern": pattern, "pattern_version": version,
+            "phase_step": phase_step, "n_live": len(ids),
+            "formation_error_m": round(m.error_m, 6), "max_slot_distance_m": round(m.far_m, 6),
+            "min_separation_m": round(m.separation_m, 6) if math.isfinite(m.separation_m)
+            else -1.0,
+            "collisions": m.colliding, "contacts": len(m.new_contacts),
+            "deadline_misses": len(m.missed),
+            "wall_ms": round((time.monotonic() - t_step) * 1000.0, 3),
+        }, now_ns)
+        targets = centred(C) + pos.mean(axis=0)
+        robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]
+        self.rec.scene(scene_json(now_ns, robots, targets, self._removed_since_scene,
+                                  self.arena_m, self.w), now_ns)
+        self.rec.end_step()
+        self._removed_since_scene = []
