@@ -8,8 +8,8 @@ Measures, on this machine:
    observation + brain + ORCA safety filter) for N = 10, 20, 50, 100 robots, with
    ``rule:assign`` and with an ONNX MLP of the trainer's size (policy
    256-128-128 on the general observation: a brain from ``exports/`` if one
-   with the general spec exists, else random weights built here with the
-   ``onnx`` helper). The teams are forming a circle from random starts, every
+   with the general spec exists, else random weights, built by the tests' support
+   (``tests/support/brains.py``)). The teams are forming a circle from random starts, every
    robot deciding with its own :class:`runtime.decision.controller.Controller`, so the
    filter meets real encounters. Beside each ONNX configuration, onnxruntime
    alone on one row, called after every decision of the same run (so both see
@@ -27,8 +27,6 @@ Measures, on this machine:
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib.util
 import json
 import os
 import statistics
@@ -43,11 +41,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the test support: stub world, test brains
 
 from runtime.brain.brain import (  # noqa: E402
-    METADATA_KEY,
     RULE_ASSIGN,
-    BrainManifest,
     OnnxBrain,
     RuleBrain,
     load_brain,
@@ -63,59 +60,6 @@ from runtime.world_config import DEFAULT_WORLD  # noqa: E402
 W = DEFAULT_WORLD
 
 
-def _stub() -> Any:
-    """The integration tests' stub world (tests/integration/conftest.py)."""
-    path = ROOT / "tests" / "integration" / "conftest.py"
-    if str(ROOT / "tests") not in sys.path:  # its helpers (tests/support.py), as pytest sees them
-        sys.path.insert(0, str(ROOT / "tests"))
-    spec = importlib.util.spec_from_file_location("stub_world", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def mlp_brain_bytes(spec: ObservationSpec, hidden: tuple[int, ...] = (256, 128, 128)) -> bytes:
-    """A tanh MLP of the trainer's size with random weights, as ONNX bytes."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
-
-    rng = np.random.default_rng(0)
-    nodes, inits = [], []
-    prev, d = "obs", spec.dim
-    for i, h in enumerate(hidden):
-        w = rng.normal(0, 1 / np.sqrt(d), (d, h)).astype(np.float32)
-        inits += [
-            numpy_helper.from_array(w, f"W{i}"),
-            numpy_helper.from_array(np.zeros(h, np.float32), f"b{i}"),
-        ]
-        nodes += [
-            helper.make_node("Gemm", [prev, f"W{i}", f"b{i}"], [f"g{i}"]),
-            helper.make_node("Tanh", [f"g{i}"], [f"h{i}"]),
-        ]
-        prev, d = f"h{i}", h
-    w = rng.normal(0, 0.1 / np.sqrt(d), (d, 2)).astype(np.float32)
-    inits += [
-        numpy_helper.from_array(w, "Wo"),
-        numpy_helper.from_array(np.zeros(2, np.float32), "bo"),
-    ]
-    nodes.append(helper.make_node("Gemm", [prev, "Wo", "bo"], ["action"]))
-    graph = helper.make_graph(
-        nodes,
-        "policy",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", spec.dim])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])],
-        inits,
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    entry = model.metadata_props.add()
-    entry.key = METADATA_KEY
-    entry.value = BrainManifest(observation=spec, file="bench-mlp.onnx").to_json(with_id=False)
-    onnx.checker.check_model(model)
-    return bytes(model.SerializeToString())
-
-
 def find_or_build_brain(tmp: Path) -> tuple[Path, str]:
     """A general-spec ONNX brain: the first one in exports/, else a random MLP."""
     for p in sorted((ROOT / "exports").glob("*.onnx")):
@@ -125,12 +69,10 @@ def find_or_build_brain(tmp: Path) -> tuple[Path, str]:
             continue
         if b.spec.needs_slots:  # a general or plan brain
             return p, f"exports/{p.name}"
+    from support.brains import trainer_sized_mlp, write_brain
+
     spec = ObservationSpec("general")
-    data = mlp_brain_bytes(spec)
-    path = tmp / "bench-mlp.onnx"
-    path.write_bytes(data)
-    m = BrainManifest(observation=spec, file=path.name, brain_id=hashlib.sha256(data).hexdigest())
-    path.with_suffix(".json").write_text(m.to_json())
+    path = write_brain(tmp, "bench-mlp", spec, trainer_sized_mlp(spec.dim))
     return path, "random MLP 256-128-128 (no general brain in exports/)"
 
 
@@ -352,7 +294,8 @@ def main() -> int:
             "p99": float(np.percentile(ts, 99)),
         }
         if not args.skip_processes:
-            stub = _stub()
+            from support import stub_world as stub
+
             reps = 2 if args.quick else 3
             out["process_rule"] = start_and_rss(stub, RULE_ASSIGN, reps)
             out["process_onnx"] = start_and_rss(stub, str(brain_path), reps)

@@ -52,10 +52,13 @@ def _clamp(vx: cython.double, vy: cython.double,
         s = v_max / sp
         vx = vx * s
         vy = vy * s
-        while True:  # exactly within v_max, both ways of taking the norm
+        # within v_max both ways of taking the norm, and a unit in the last place below it:
+        # C libraries' hypot and Python's round differently by that much
+        lim: cython.double = v_max * (1.0 - 1e-16)
+        while True:
             a = hypot(vx, vy)
             b = sqrt(vx * vx + vy * vy)
-            if not (a if a > b else b) > v_max:
+            if not (a if a > b else b) > lim:
                 break
             vx = vx * (1.0 - 1e-15)
             vy = vy * (1.0 - 1e-15)
@@ -65,7 +68,8 @@ def _clamp(vx: cython.double, vy: cython.double,
 @cython.ccall
 def clamp_speed(vx: cython.double, vy: cython.double,
                 v_max: cython.double) -> tuple[cython.double, cython.double]:
-    """(vx, vy) scaled down to norm <= v_max (exactly, both ways of taking the norm), m/s."""
+    """(vx, vy) scaled down to norm <= v_max (m/s): a clamped velocity's norm is at most v_max
+    whichever way it is taken (``hypot`` of C or Python, or ``sqrt(x*x + y*y)``)."""
     return _clamp(vx, vy, v_max)
 
 

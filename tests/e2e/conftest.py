@@ -12,6 +12,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,7 @@ OPEN_COMMANDS = ("sim", "robot", "swap")
 from support import free_port as free_port  # noqa: E402
 from support import stop_processes  # noqa: E402
 from support import wait_for as wait_for  # noqa: E402
+from support.brains import write_test_brain  # noqa: E402
 
 
 def pid_alive(pid: int) -> bool:
@@ -237,48 +239,6 @@ class FakeRobot:
         self.session.close()
 
 
-def write_test_brain(directory: Path, name: str, obs: str = "general", pattern: str | None = None,
-                     n_robots: int | None = None, seed: int = 0, sign: bool = True) -> Path:
-    """A small random linear brain ``<name>.onnx`` + ``<name>.json``, as an export writes them.
-
-    It passes the runtime's validation (shapes, finite outputs) but forms nothing: for
-    tests of brain choice and swaps, not of formation.
-    """
-    import hashlib
-
-    from onnx import TensorProto, helper, numpy_helper
-
-    from runtime.brain.brain import METADATA_KEY, BrainManifest
-    from runtime.decision.observation import ObservationSpec
-
-    spec = ObservationSpec(obs, n_robots=n_robots or 0) if obs == "paper" else ObservationSpec(obs)
-    rng = np.random.default_rng(seed)
-    w = rng.normal(0.0, 0.1, (spec.dim, 2)).astype(np.float32)
-    graph = helper.make_graph(
-        [helper.make_node("Gemm", ["obs", "W", "b"], ["action"])], "policy",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", spec.dim])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])],
-        [numpy_helper.from_array(w, "W"), numpy_helper.from_array(np.zeros(2, np.float32), "b")],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    manifest = BrainManifest(observation=spec, file=f"{name}.onnx", pattern=pattern,
-                             n_robots=n_robots, training={"algorithm": "test"})
-    entry = model.metadata_props.add()
-    entry.key, entry.value = METADATA_KEY, manifest.to_json(with_id=False)
-    data = model.SerializeToString()
-    path = directory / f"{name}.onnx"
-    path.write_bytes(data)
-    manifest.brain_id = hashlib.sha256(data).hexdigest()
-    if sign:  # by the test run's own key (PATTERNRL_HOME), which its robots trust
-        from runtime.brain.signing import load_private_key, sign_manifest, user_key
-
-        key = load_private_key(user_key() or "")
-        manifest.signature = sign_manifest(manifest.to_dict(), manifest.brain_id, key)
-    path.with_suffix(".json").write_text(manifest.to_json())
-    return path
-
-
 class Kit:
     """The helpers above, for tests (conftest modules are not importable by name)."""
 
@@ -288,7 +248,9 @@ class Kit:
     children_of = staticmethod(children_of)
     Watcher = Watcher
     FakeRobot = FakeRobot
-    write_test_brain = staticmethod(write_test_brain)
+    # a small random linear brain: it passes the runtime's validation but forms nothing (for
+    # tests of brain choice and swaps, not of formation)
+    write_test_brain = staticmethod(partial(write_test_brain, hidden=(), out_std=0.1, gain=1.0))
 
 
 @pytest.fixture

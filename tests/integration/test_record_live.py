@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import IO, Any
 
 import pytest
-from conftest import ROOT, free_port, wait_for
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
+from support import ROOT, free_port, wait_for
 
 from patternrl.cli import main as cli
 from sim_bridge.launch.swarm_keys import create_swarm_keys

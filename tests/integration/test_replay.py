@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from conftest import ROOT, free_port, wait_for, write_test_brain
+from support import ROOT, free_port, wait_for
+from support.brains import write_test_brain
 
 from patternrl.cli import main as cli
 from runtime.decision.formation import lower_bounds

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, RobotProc, StubWorld, wait_for, write_test_brain
+from support import ROOT, wait_for
+from support.brains import write_test_brain
+from support.stub_world import RobotProc, StubWorld
 
 from runtime.brain.brain import RULE_ASSIGN, RuleBrain
 from runtime.brain.signing import generate_key
@@ -265,9 +267,9 @@ def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
         "corrupt": (write_test_brain(tmp_path, "corrupt", corrupt=True), "cannot load"),
         "nan": (write_test_brain(tmp_path, "nan", nan=True), "non-finite"),
         "digest": (write_test_brain(tmp_path, "digest", wrong_digest=True), "digest mismatch"),
-        "unsigned": (write_test_brain(tmp_path, "unsigned", sign_key=False), "not signed"),
+        "unsigned": (write_test_brain(tmp_path, "unsigned", sign=False), "not signed"),
         "untrusted": (
-            write_test_brain(tmp_path, "untrusted", sign_key=generate_key(tmp_path / "other")),
+            write_test_brain(tmp_path, "untrusted", sign=generate_key(tmp_path / "other")),
             "untrusted key",
         ),
     }

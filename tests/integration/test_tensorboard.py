@@ -3,23 +3,20 @@
 from __future__ import annotations
 
 import csv
-import math
 import os
 import signal
 import subprocess
 import sys
 import time
 import tomllib
-from pathlib import Path
 
 import pytest
+from support import ROOT
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from patternrl.cli import main
 from trainer.config import TrainConfig
-from trainer.curve import CURVE_FIELDS, SCALAR_TAGS, TensorBoardCurve
-
-ROOT = Path(__file__).resolve().parents[2]
+from trainer.curve import CURVE_FIELDS, SCALAR_TAGS
 
 # rollout_steps = the step limit: every world's first (desynchronised) episode ends in the
 # first iteration, so the rows have training rewards
@@ -69,31 +66,6 @@ def test_train_writes_every_curve_column_each_iteration(tmp_path, capsys) -> Non
     cfg = TrainConfig.from_dict(tomllib.loads(toml))
     assert (cfg.n_robots, cfg.n_envs, cfg.seed, cfg.latent_dim) == (4, 2, 2, 4)
     assert "circle > line" in _text(acc, "run")[0][1]
-
-
-def test_rows_are_on_disk_before_close_and_nan_is_left_out(tmp_path) -> None:
-    row = dict.fromkeys(CURVE_FIELDS, 0.5) | {"iteration": 3, "pattern": "heart",
-                                              "eval_success": math.nan}
-    with TensorBoardCurve(tmp_path, {"config": "seed = 1"}) as board:
-        board(row)
-        acc = _events(tmp_path)  # flushed at once: what tensorboard --logdir shows live
-        assert [e.step for e in acc.Scalars("update/kl")] == [3]
-        assert "eval/eval_success" not in acc.Tags()["scalars"]
-        board(row | {"iteration": 4, "eval_success": 1.0})
-    acc = _events(tmp_path)
-    assert [(e.step, e.value) for e in acc.Scalars("eval/eval_success")] == [(4, 1.0)]
-    assert [e.step for e in acc.Scalars("rollout/mean_reward")] == [3, 4]
-
-
-def test_a_file_in_the_way_is_one_line_exit_2(tmp_path, capsys) -> None:
-    blocker = tmp_path / "tb"
-    blocker.write_text("not a directory")
-    code = main(["train", "--pattern", "circle", *TINY, "--time-budget-s", "0",
-                 "--no-progress", "--out", str(tmp_path / "b.onnx"), "--tensorboard",
-                 str(blocker)])
-    assert code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"patternrl train: --tensorboard {blocker}: not a directory"]
 
 
 def test_ctrl_c_leaves_a_readable_event_file(tmp_path) -> None:

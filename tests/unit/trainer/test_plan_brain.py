@@ -23,7 +23,6 @@ from trainer.evaluate import evaluate_brain
 from trainer.ppo.export import agent_from_onnx, write_brain
 from trainer.ppo.networks import Agent
 from trainer.rollout import collect_rollout
-from trainer.train import RunPlan, train
 from trainer.world.training_world import BatchWorld
 
 W = 0.25
@@ -164,21 +163,6 @@ def test_training_behind_the_filter_moves_robots_by_the_filtered_command() -> No
     vel = (out.batch.actions.numpy() + base).reshape(3, 12, 2)
     filtered = commands(vel, pos0, prev0, OrcaParams(), DEFAULT_WORLD, k)[0]
     np.testing.assert_allclose(bw.positions, pos0 + filtered * DEFAULT_WORLD.dt_s, atol=1e-6)
-
-
-def test_a_short_plan_run_trains_and_exports(tmp_path: Path) -> None:
-    cfg = TrainConfig(algo="ppo", obs="plan", residual=True, travel_weight=W, train_safety=True,
-                      n_robots=5, n_envs=4, rollout_steps=8, minibatch=64, policy_steps=2,
-                      value_steps=2, eval_every=1, eval_episodes=4, seed=0, init_std=0.1,
-                      reward={"travel_penalty": 0.05, "progress_weight": 0.0})
-    plan = RunPlan(patterns=["random"], out=tmp_path / "b.onnx", episodes=8, progress=False,
-                   write_files=False)
-    res = train(cfg, plan)
-    assert res.episodes >= 8
-    write_brain(res.agent, tmp_path / "b.onnx", BrainManifest(observation=obs_spec_for(cfg)))
-    brain = load_brain(str(tmp_path / "b.onnx"))
-    assert brain.spec == SPEC
-    assert evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False).success_rate > 0.0
 
 
 @pytest.mark.parametrize("n", [9, 40])

@@ -7,12 +7,10 @@ import json
 from pathlib import Path
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
+from support.brains import GENERAL, mlp_model, write_brain
 
 from runtime.brain.brain import (
-    METADATA_KEY,
     RULE_ASSIGN,
     Brain,
     BrainError,
@@ -28,89 +26,6 @@ from runtime.brain.brain import (
 )
 from runtime.decision.observation import ObservationSpec
 from runtime.world_config import DEFAULT_WORLD
-
-GENERAL = ObservationSpec("general", k_neighbours=6)
-
-
-def mlp_model(
-    in_dim: int,
-    hidden: tuple[int, ...] = (16,),
-    seed: int = 0,
-    nan: bool = False,
-    out_dim: int = 2,
-    fixed_batch: bool = False,
-    input_name: str = "obs",
-) -> onnx.ModelProto:
-    """A tanh MLP obs -> action (m/s), random weights; ``nan`` poisons the output."""
-    rng = np.random.default_rng(seed)
-    nodes, inits = [], []
-    prev, d = input_name, in_dim
-    for i, h in enumerate(hidden):
-        w = rng.normal(0, 1 / np.sqrt(d), (d, h)).astype(np.float32)
-        inits += [
-            numpy_helper.from_array(w, f"W{i}"),
-            numpy_helper.from_array(np.zeros(h, np.float32), f"b{i}"),
-        ]
-        nodes += [
-            helper.make_node("Gemm", [prev, f"W{i}", f"b{i}"], [f"g{i}"]),
-            helper.make_node("Tanh", [f"g{i}"], [f"h{i}"]),
-        ]
-        prev, d = f"h{i}", h
-    w = rng.normal(0, 0.5, (d, out_dim)).astype(np.float32)
-    inits += [
-        numpy_helper.from_array(w, "Wo"),
-        numpy_helper.from_array(np.zeros(out_dim, np.float32), "bo"),
-    ]
-    last = "mean"
-    nodes.append(helper.make_node("Gemm", [prev, "Wo", "bo"], [last]))
-    if nan:
-        inits.append(numpy_helper.from_array(np.array([np.nan], np.float32), "poison"))
-        nodes.append(helper.make_node("Mul", [last, "poison"], ["action"]))
-    else:
-        nodes.append(helper.make_node("Identity", [last], ["action"]))
-    batch: str | int = 1 if fixed_batch else "batch"
-    graph = helper.make_graph(
-        nodes,
-        "policy",
-        [helper.make_tensor_value_info(input_name, TensorProto.FLOAT, [batch, in_dim])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, [batch, out_dim])],
-        inits,
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    return model
-
-
-def write_brain(
-    tmp: Path,
-    name: str,
-    spec: ObservationSpec = GENERAL,
-    model: onnx.ModelProto | None = None,
-    sidecar: bool = True,
-    metadata: bool = True,
-    pattern: str | None = None,
-) -> Path:
-    """Write ``<name>.onnx`` (+ ``<name>.json``) as the trainer's export does."""
-    model = model if model is not None else mlp_model(spec.dim)
-    manifest = BrainManifest(
-        observation=spec,
-        file=f"{name}.onnx",
-        pattern=pattern,
-        n_robots=spec.n_robots or None,
-        training={"algorithm": "test"},
-    )
-    if metadata:
-        entry = model.metadata_props.add()
-        entry.key, entry.value = METADATA_KEY, manifest.to_json(with_id=False)
-    data = model.SerializeToString()
-    path = tmp / f"{name}.onnx"
-    path.write_bytes(data)
-    if sidecar:
-        manifest.brain_id = hashlib.sha256(data).hexdigest()
-        path.with_suffix(".json").write_text(manifest.to_json())
-    return path
-
 
 # ----------------------------------------------------------------------------- manifest
 

@@ -3,26 +3,13 @@
 from __future__ import annotations
 
 import importlib.metadata
-import subprocess
-import sys
 import tomllib
-from pathlib import Path
 
-import pytest
+from support import ROOT
 
 from patternrl import cli
 
-ROOT = Path(__file__).resolve().parents[2]
 SOURCE_VERSION = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
-
-
-@pytest.mark.parametrize("flag", ["--version", "-V"])
-def test_version_prints_and_exits_0(flag: str) -> None:
-    proc = subprocess.run([sys.executable, "-m", "patternrl.cli", flag], cwd=ROOT,
-                          capture_output=True, text=True, timeout=60, check=False)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout == f"patternrl {cli.version()}\n"
-    assert proc.stderr == ""
 
 
 def test_version_is_the_installed_metadata_else_pyproject(monkeypatch, capsys) -> None:

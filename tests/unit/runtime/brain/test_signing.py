@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from support import ROOT
+from support.brains import copy_shipped_brain
 
 from runtime.brain.brain import BrainError, load_brain, load_sent_brain, read_brain_file
 from runtime.brain.cli import sign_brain_file, verify_brain_file
@@ -19,14 +19,7 @@ from runtime.brain.signing import (
     load_public_key,
 )
 
-ROOT = Path(__file__).resolve().parents[2]
 EXPORTS = ROOT / "exports"
-
-
-def _copy_brain(tmp: Path, name: str = "general") -> Path:
-    for suffix in (".onnx", ".json"):
-        (tmp / f"b{suffix}").write_bytes((EXPORTS / f"{name}{suffix}").read_bytes())
-    return tmp / "b.onnx"
 
 
 def test_the_release_key_ships_and_signs_every_shipped_brain() -> None:
@@ -38,7 +31,7 @@ def test_the_release_key_ships_and_signs_every_shipped_brain() -> None:
 
 
 def test_sign_verify_and_every_way_to_break_it(tmp_path: Path) -> None:
-    brain = _copy_brain(tmp_path)
+    brain = copy_shipped_brain(tmp_path)
     key = generate_key(tmp_path / "op")
     with pytest.raises(SignatureError, match="untrusted key"):  # still the release signature
         verify_brain_file(str(brain), default_trust(release=False, user=False))
@@ -72,45 +65,3 @@ def test_sign_verify_and_every_way_to_break_it(tmp_path: Path) -> None:
     assert load_sent_brain('{"rule": "rule:assign"}', b"", trust=trust).brain_id == "rule:assign"
 
 
-def _cli(*argv: str, env_home: Path) -> subprocess.CompletedProcess[str]:
-    import os
-
-    env = dict(os.environ, PATTERNRL_HOME=str(env_home))
-    return subprocess.run([sys.executable, "-m", "patternrl.cli", "brain", *argv], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120, env=env)
-
-
-def test_brain_command_keygen_sign_verify(tmp_path: Path) -> None:
-    home = tmp_path / "home"
-    brain = _copy_brain(tmp_path, "circle-10-general")
-    r = _cli("verify", str(brain), "--json", env_home=home)
-    assert r.returncode == 0 and json.loads(r.stdout)["reason"] == "signed by release"
-    r = _cli("keygen", env_home=home)
-    assert r.returncode == 0 and (home / "brain-key.pub").is_file(), r.stderr
-    assert (home / "brain-key").stat().st_mode & 0o077 == 0
-    r = _cli("keygen", env_home=home)
-    assert r.returncode == 2 and "already exists" in r.stderr and "Traceback" not in r.stderr
-    r = _cli("sign", str(brain), env_home=home)  # with the user's own key
-    assert r.returncode == 0, r.stderr
-    r = _cli("verify", str(brain), env_home=home)
-    assert r.returncode == 0 and "own key" in r.stdout
-    r = _cli("verify", str(brain), env_home=tmp_path / "elsewhere")  # another user
-    assert r.returncode == 1 and "untrusted key" in r.stdout
-    r = _cli("sign", "rule:assign", env_home=home)
-    assert r.returncode == 2 and "needs no signature" in r.stderr
-    r = _cli("verify", str(brain), "--trust", str(tmp_path / "nope.pub"), env_home=home)
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no such file" in r.stderr
-    r = _cli("sign", str(brain), "--key", str(brain), env_home=home)
-    assert r.returncode == 2 and "not an unencrypted private key" in r.stderr
-
-
-def test_signing_costs_the_robot_little_to_import() -> None:
-    code = (
-        "import sys, time\nt = time.perf_counter()\n"
-        "from runtime.brain import signing\n"
-        "print(time.perf_counter() - t, 'torch' in sys.modules)\n"
-    )
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                       cwd=ROOT)
-    assert r.returncode == 0, r.stderr
-    assert r.stdout.split()[1] == "False"

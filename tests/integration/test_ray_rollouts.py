@@ -4,28 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
-from runtime.world_config import DEFAULT_WORLD
 from trainer.config import TrainConfig
-from trainer.rollout import RolloutMode, env_shares, stage_world
+from trainer.rollout import RolloutMode
 from trainer.train import RunPlan, train
 
 TINY = TrainConfig(n_robots=4, n_envs=4, rollout_steps=8, minibatch=64, ae_steps=2,
                    policy_steps=2, value_steps=2, eval_every=2, eval_episodes=4, seed=3)
-
-
-def test_shares_draw_the_starts_of_one_batch() -> None:
-    """K workers' shares of the envs start where one process's envs start."""
-    whole, _ = stage_world(TINY.with_(n_envs=5), DEFAULT_WORLD, "line", 0, 0)
-    for a, b in env_shares(5, 2):
-        part, _ = stage_world(TINY.with_(n_envs=5), DEFAULT_WORLD, "line", 0, 0, (a, b))
-        assert np.array_equal(part.positions, whole.positions[a:b])
-        assert np.array_equal(part.steps, whole.steps[a:b])
-    with pytest.raises(ValueError):
-        env_shares(2, 3)
 
 
 def test_one_ray_worker_trains_the_in_process_brain(tmp_path: Path) -> None:

@@ -8,10 +8,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from support.training import TINY, TINY_WORLD
 
-from runtime.brain.brain import BrainManifest, load_brain
-from runtime.decision.observation import ObservationSpec
-from runtime.world_config import DEFAULT_WORLD
 from trainer.checkpoints import (
     InitError,
     best_record,
@@ -23,13 +21,10 @@ from trainer.checkpoints import (
 )
 from trainer.config import TrainConfig, obs_spec_for, reward_for
 from trainer.curve import CURVE_FIELDS, curve_row, write_curve
-from trainer.evaluate import evaluate_brain
-from trainer.ppo.export import write_brain
 from trainer.ppo.networks import Agent, ObsNormaliser, gaussian_kl, gaussian_logprob
 from trainer.ppo.storage import RolloutBatch, discounted_returns, gae
 from trainer.ppo.update import UpdateStats, adapt_kl_coef, minibatches, policy_loss
 from trainer.rollout import collect_rollout
-from trainer.train import RunPlan, artefact_paths, train
 from trainer.world.training_world import BatchWorld
 
 # ------------------------------------------------------------------ returns
@@ -230,34 +225,8 @@ def test_policy_shapes_and_ranges() -> None:
     assert ppo.decoder is None
 
 
-# ------------------------------------------------------------- short real runs
-
-TINY = TrainConfig(
-    n_robots=4,
-    n_envs=4,
-    rollout_steps=8,
-    minibatch=64,
-    ae_steps=2,
-    policy_steps=3,
-    value_steps=3,
-    latent_dim=8,
-    ae_hidden=16,
-    eval_every=2,
-    eval_episodes=3,
-)
-TINY_WORLD = DEFAULT_WORLD.with_(step_limit=12)
-
-
-def _tiny_run(tmp_path, cfg: TrainConfig = TINY, **plan_kw):
-    plan = RunPlan(
-        patterns=plan_kw.pop("patterns", ["circle"]),
-        out=tmp_path / "tiny.onnx",
-        episodes=plan_kw.pop("episodes", 16),
-        progress=False,
-        world=TINY_WORLD,
-        **plan_kw,
-    )
-    return train(cfg, plan)
+# -------------------------------------------------- a rollout, a checkpoint, the curve
+# (training runs: tests/integration/test_training_runs.py)
 
 
 def test_rollout_fills_memory_and_replays_with_the_same_generator() -> None:
@@ -317,64 +286,6 @@ def test_curve_rows_and_csv(tmp_path) -> None:
     assert header.split(",") == list(CURVE_FIELDS)
     cells = dict(zip(CURVE_FIELDS, line.split(","), strict=True))
     assert cells["eval_success"] == "" and cells["mean_reward"] == "2"
-
-
-def _curve_without_wall(rows):
-    def same(v):  # nan != nan: compare it as a marker
-        return "nan" if isinstance(v, float) and math.isnan(v) else v
-
-    return [{k: same(v) for k, v in r.items() if k != "wall_s"} for r in rows]
-
-
-@pytest.mark.parametrize("algo", ["pattern-rl", "ppo"])
-def test_same_seed_gives_the_same_learning_curve(tmp_path, algo: str) -> None:
-    cfg = TINY.with_(algo=algo, seed=7)
-    a = _tiny_run(tmp_path / "a", cfg, write_files=False)
-    b = _tiny_run(tmp_path / "b", cfg, write_files=False)
-    assert len(a.curve) >= 4
-    assert _curve_without_wall(a.curve) == _curve_without_wall(b.curve)
-    c = _tiny_run(tmp_path / "c", cfg.with_(seed=8), write_files=False)
-    assert _curve_without_wall(c.curve) != _curve_without_wall(a.curve)
-
-
-def test_tiny_model_trains_exports_and_evaluates(tmp_path) -> None:
-    res = _tiny_run(tmp_path, patterns=["circle", "line"], episodes=4)
-    files = artefact_paths(tmp_path / "tiny.onnx")
-    header = files["curve_csv"].read_text().splitlines()[0].split(",")
-    assert header[:4] == ["iteration", "stage", "pattern", "episodes"]
-    assert files["curve_png"].stat().st_size > 0
-    assert {r["pattern"] for r in res.curve} == {"circle", "line"}
-    assert res.episodes >= 8
-    # export, parity with torch through the runtime's loader, then evaluate as a robot runs it
-    spec = ObservationSpec("general")
-    out = tmp_path / "tiny.onnx"
-    write_brain(res.agent, out, BrainManifest(observation=spec, pattern="line", n_robots=4))
-    brain = load_brain(str(out))
-    obs = np.random.default_rng(0).normal(size=(1000, spec.dim))
-    with torch.no_grad():
-        ref = res.agent.act_mps(torch.from_numpy(obs.astype(np.float32))).numpy()
-    np.testing.assert_allclose(brain.act(obs), ref, atol=1e-5)
-    ev = evaluate_brain(brain, "line", 4, episodes=3, seed=5, world=TINY_WORLD, progress=False)
-    assert ev.episodes == 3 and 0.0 <= ev.success_rate <= 1.0
-    assert ev.safety == "orca"
-    # resume from the checkpoint and fine-tune from the brain: both run
-    more = _tiny_run(
-        tmp_path,
-        patterns=["circle", "line"],
-        episodes=4,
-        resume=str(files["checkpoint"]),
-        write_files=False,
-    )
-    assert more.curve[-1]["iteration"] > res.curve[-1]["iteration"]
-    tuned = _tiny_run(tmp_path / "ft", init=str(out), write_files=False)
-    assert tuned.episodes >= 8
-
-
-def test_lambda_adapts_during_training(tmp_path) -> None:
-    res = _tiny_run(tmp_path, TINY.with_(kl_target=1e-6), write_files=False)
-    coefs = [r["kl_coef"] for r in res.curve]
-    assert coefs[0] == pytest.approx(2.0)  # KL far above a tiny target: lambda doubles
-    assert coefs == sorted(coefs)
 
 
 # --------------------------------------------------------------------- CLI

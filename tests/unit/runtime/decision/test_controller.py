@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 from typing import Any
 
 import numpy as np
 import pytest
 from numpy.typing import NDArray
-from test_brain import mlp_model  # tests/unit is on sys.path (pytest rootdir mode)
-from test_observation import reference_rows
+from support.brains import onnx_brain
+from support.rows import reference_rows
 
-from runtime.brain.brain import BrainManifest, RuleBrain, validate_brain_bytes
+from runtime.brain.brain import BrainManifest, RuleBrain
 from runtime.decision import formation
 from runtime.decision.controller import Controller
 from runtime.decision.formation import assign_slots, formation_error, slot_positions
@@ -47,12 +46,6 @@ class ConstBrain:
         if self.v == (-1.0, -1.0):
             raise RuntimeError("broken brain")
         return np.tile(np.array(self.v, dtype=np.float64), (len(obs), 1))
-
-
-def onnx_brain(spec: ObservationSpec, seed: int = 0) -> Any:
-    data = mlp_model(spec.dim, hidden=(32, 32), seed=seed).SerializeToString()
-    digest = hashlib.sha256(data).hexdigest()
-    return validate_brain_bytes(data, BrainManifest(observation=spec), digest)
 
 
 def spread(n: int, rng: np.random.Generator, side: float = 3.0) -> NDArray[np.float64]:

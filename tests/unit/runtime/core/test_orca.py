@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_neighbours import python_core  # tests/unit is on sys.path (pytest rootdir mode)
+from support.core_source import python_core
 
 from runtime.core import orca as core_orca
 from runtime.core.orca import MAX_NEIGHBOURS, OrcaFilter, clamp_speed

@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from support import ROOT
 
 from runtime.brain.brain import RuleBrain, load_brain
 from runtime.decision.patterns import PatternError, make_pattern
 from runtime.decision.team_pattern import MAX_VERSION_STEP, TeamPattern, fit_pattern
 from runtime.wire.messages import PatternMsg
 
-EXPORTS = Path(__file__).resolve().parents[2] / "exports"
+EXPORTS = ROOT / "exports"
 
 
 def msg(version: int, name: str, points: np.ndarray) -> PatternMsg:

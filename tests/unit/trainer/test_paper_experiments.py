@@ -16,14 +16,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+from support import ROOT
+from support.brains import trainer_sized_mlp, write_brain
 
 from runtime.brain.brain import RULE_ASSIGN, load_brain
 from runtime.decision.observation import ObservationSpec
 from runtime.decision.safety import OrcaParams
 from runtime.world_config import DEFAULT_WORLD
 from trainer.evaluate import evaluate_brain
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench(name: str) -> ModuleType:
@@ -100,9 +100,8 @@ def test_eval_cli_takes_the_orca_time_horizon(capsys: pytest.CaptureFixture[str]
 
 
 def test_tiny_run_writes_the_document(pe: ModuleType, tmp_path: Path) -> None:
-    rl = _bench("runtime_latency")
-    brain = tmp_path / "mlp.onnx"
-    brain.write_bytes(rl.mlp_brain_bytes(ObservationSpec("general")))
+    spec = ObservationSpec("general")
+    brain = write_brain(tmp_path, "mlp", spec, trainer_sized_mlp(spec.dim), sidecar=False)
     out = tmp_path / "docs"
     rc = pe.main(["--ns", "4", "--episodes", "2", "--taus", "1", "--brains", str(brain),
                   "--out", str(out), "--fig5-dir", str(tmp_path / "none"), "--skip-world",

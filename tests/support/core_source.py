@@ -1,0 +1,47 @@
+"""The decision core run uncompiled, from its source, whatever is compiled beside it: the
+reference the compiled core is checked against."""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+import sys
+from types import ModuleType, SimpleNamespace
+
+from support import ROOT
+
+CORE = ROOT / "runtime" / "core"
+
+
+def _from_source(name: str, module_name: str) -> ModuleType:
+    """``runtime/core/<name>.py`` executed as Python, whatever is compiled beside it."""
+    spec = importlib.util.spec_from_file_location(module_name, CORE / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@functools.cache
+def python_core() -> SimpleNamespace:
+    """``neighbours``, ``general_row`` and ``orca`` run uncompiled, from their source.
+
+    The row builder and the filter import ``nearest`` from ``runtime.core.neighbours``;
+    while they load, that name points at the uncompiled neighbours module, so the three
+    run as Python together. The compiled module is put back afterwards.
+    """
+    import runtime.core.neighbours  # noqa: F401 - the module to put back
+
+    key = "runtime.core.neighbours"
+    compiled = sys.modules[key]
+    neighbours = _from_source("neighbours", key)
+    sys.modules[key] = neighbours
+    try:
+        general_row = _from_source("general_row", "runtime_core_general_row_source")
+        orca = _from_source("orca", "runtime_core_orca_source")
+    finally:
+        sys.modules[key] = compiled
+    for mod in (neighbours, general_row, orca):
+        assert not mod.cython.compiled
+    assert general_row.nearest is neighbours.nearest and orca.nearest is neighbours.nearest
+    return SimpleNamespace(neighbours=neighbours, general_row=general_row, orca=orca)
