@@ -268,6 +268,10 @@ def format_table(r: EvalResult) -> str:
 # ------------------------------------------------------------------------ CLI
 
 
+MIN_EVAL_ROBOTS = 2
+"""Smallest team evaluated: a pattern needs at least two robots."""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--brain", required=True, help="an ONNX brain (.onnx) or rule:assign")
     p.add_argument("--pattern", help="built-in name or file (default: the brain's own pattern)")
@@ -302,6 +306,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.robots is not None and args.robots < MIN_EVAL_ROBOTS:
+        print(f"patternrl eval: --robots must be >= {MIN_EVAL_ROBOTS} (a pattern needs "
+              f"{MIN_EVAL_ROBOTS} robots), got {args.robots}", file=sys.stderr)
+        return 2
     try:
         brain = load_brain(args.brain)
     except BrainError as e:
@@ -312,7 +320,10 @@ def run(args: argparse.Namespace) -> int:
     if not pattern:
         print("patternrl eval: give --pattern (the brain names none)", file=sys.stderr)
         return 2
-    n = args.robots or (manifest.n_robots if manifest is not None and manifest.n_robots else 10)
+    if args.robots is not None:
+        n = args.robots
+    else:
+        n = manifest.n_robots if manifest is not None and manifest.n_robots else 10
     if not brain.spec.accepts_team(n):
         print(
             f"patternrl eval: the brain reads the '{brain.spec.name}' observation of "

@@ -32,13 +32,21 @@ One identity directory (what a robot's host needs, nothing else)::
 
     identity.json   {"format": 1, "swarm": ..., "name": "robot-3", "robots": N}
     ca.pem          the swarm's authority (public certificate)
-    cert.pem        this identity's certificate, CN = name
+    cert.pem        this identity's certificate, CN = name (the role the access
+                    rules go by)
     key.pem         its private key (mode 0600)
     zenoh.json5     a Zenoh config of this identity: TLS and access control, for any
                     Zenoh tool (paths absolute where it was created)
 
 :func:`apply_identity` reads the access rules from ``zenoh.json5`` and points
 the TLS paths at the directory where it is now, so a copied directory works.
+
+Each command speaks as one role and refuses any other identity at start
+(:func:`check_role`, called by :func:`find_identity`): ``sim`` and ``replay
+--play`` the ``world``, ``router`` the ``router``, ``robot --id i``
+``robot-<i>``, the operator's tools (``swap``, ``record``) the ``operator``.
+The role is read from the certificate's common name, which is what the other
+nodes' access rules see, and must agree with ``identity.json``.
 """
 
 from __future__ import annotations
@@ -51,6 +59,8 @@ from pathlib import Path
 from typing import Any, Final, Literal
 
 import zenoh
+from cryptography import x509
+from cryptography.x509.oid import NameOID
 
 from runtime.errors import InputError
 from runtime.wire import keys
@@ -63,6 +73,8 @@ __all__ = [
     "IdentityError",
     "access_control",
     "apply_identity",
+    "certificate_name",
+    "check_role",
     "default_identity_name",
     "find_identity",
     "identity_zenoh_config",
@@ -264,10 +276,53 @@ def find_identity(identity_dir: str | None, tls_dir: str | None, as_name: str | 
     if ident.swarm != swarm:
         raise IdentityError(f"identity {ident.name} belongs to swarm '{ident.swarm}', "
                             f"not '{swarm}'")
-    if role == "robot" and robot_id is not None and ident.name != robot_identity(robot_id):
-        raise IdentityError(f"identity {ident.name} cannot speak for robot {robot_id} "
-                            f"(its identity is {robot_identity(robot_id)})")
+    check_role(ident, role, robot_id)
     return ident
+
+
+def certificate_name(directory: Path) -> str:
+    """The common name of ``directory/cert.pem``: the name the access rules know it by."""
+    path = directory / CERT_FILE
+    try:
+        cert = x509.load_pem_x509_certificate(path.read_bytes())
+        names = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+    except (OSError, ValueError) as e:
+        raise IdentityError(f"identity {directory}: {CERT_FILE} is not a certificate "
+                            f"({' '.join(str(e).split())[:120]})") from None
+    if len(names) != 1 or not isinstance(names[0].value, str):
+        raise IdentityError(f"identity {directory}: {CERT_FILE} has no single common name")
+    return names[0].value
+
+
+_ROLE_WORDS: Final = {"world": "the world", "router": "the router",
+                      "tool": "an operator's tool"}
+
+
+def check_role(ident: Identity, role: RoleName, robot_id: int | None = None) -> None:
+    """IdentityError (one line) unless ``ident`` is the identity a process of ``role`` needs.
+
+    ``world`` needs ``world``, ``router`` ``router``, ``tool`` (swap, record)
+    ``operator``, ``robot`` ``robot-<robot_id>`` (any robot's when the id is not
+    known). The name is the certificate's common name, the one the access rules
+    match, and ``identity.json`` must say the same.
+    """
+    cn = certificate_name(ident.directory)
+    if cn != ident.name:
+        raise IdentityError(f"identity {ident.directory}: {CERT_FILE} is {cn!r} but "
+                            f"{META_FILE} says {ident.name!r}")
+    if role == "robot":
+        if robot_id is None:
+            if cn.startswith("robot-") and cn[len("robot-"):].isdigit():
+                return
+            raise IdentityError(f"identity {cn} is not a robot's (robot-<id>)")
+        if cn != robot_identity(robot_id):
+            raise IdentityError(f"identity {cn} cannot speak for robot {robot_id} "
+                                f"(its identity is {robot_identity(robot_id)})")
+        return
+    need = default_identity_name(role)
+    if cn != need:
+        raise IdentityError(f"identity {cn} cannot act as {_ROLE_WORDS[role]} "
+                            f"(that needs identity {need})")
 
 
 def apply_identity(conf: zenoh.Config, ident: Identity) -> None:

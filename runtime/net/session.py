@@ -56,6 +56,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -154,8 +155,24 @@ def _check_endpoints(what: str, eps: Sequence[str], tls_only: bool = False) -> l
     return out
 
 
+_RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?$")
+_ZENOH_STR = re.compile(r'^Str\("(.*)"\)$')
+_ZENOH_JSON5 = re.compile(r'^Json5Err\(Message \{ msg: "((?:[^"\\]|\\.)*)"')
+
+
+def _reason(e: BaseException) -> str:
+    """Zenoh's error in words: without the Rust source path it names, nor its wrappers."""
+    text = _RUST_SOURCE.sub("", str(e).strip())
+    if m := _ZENOH_STR.match(text):
+        text = m.group(1)
+    elif m := _ZENOH_JSON5.match(text):
+        msg = m.group(1).replace('\\"', '"')
+        text = "bad value: " + msg.rpartition("\\n  = ")[2]  # a parser's caret drawing: its verdict
+    return " ".join(text.split()) or type(e).__name__
+
+
 def _first_line(e: BaseException) -> str:
-    text = str(e).strip()
+    text = _reason(e)
     return text.splitlines()[0] if text else type(e).__name__
 
 
@@ -176,7 +193,12 @@ def _apply_cfg(conf: zenoh.Config, items: Sequence[str]) -> None:
         try:
             conf.insert_json5(key.strip(), value)
         except Exception as e:
-            raise ZenohSetupError(f"bad --cfg {item!r}: {_first_line(e)[:200]}") from None
+            reason = _first_line(e)
+            if reason == "unknown key":
+                reason = f"unknown zenoh config key {key.strip()!r}"
+            else:
+                reason = f"key {key.strip()!r}: {reason}"
+            raise ZenohSetupError(f"bad --cfg {item!r}: {reason[:200]}") from None
 
 
 def make_config(

@@ -10,10 +10,16 @@ from pathlib import Path
 from runtime.decision.patterns import PatternError, describe_builtins, make_pattern, min_spacing
 from runtime.world_config import DEFAULT_WORLD
 
+MAX_SHOW_ROBOTS = 10_000
+"""Largest team ``show`` resamples and draws (the same bound as ``patternrl keys``)."""
+
+LABELLED_ROBOTS = 200
+"""Above this many points the drawing leaves out the index labels: they would overlap."""
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
-    sub.add_parser("list", help="list the built-in patterns")
+    listing = sub.add_parser("list", help="list the built-in patterns")
     show = sub.add_parser(
         "show", help="print a pattern's points (and draw it with --out)",
         description="Resample a built-in or a pattern file to N robots and show it.",
@@ -21,8 +27,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     show.add_argument("pattern", help="a built-in name (see 'list') or a CSV/JSON file of points")
     show.add_argument("--robots", type=int, default=10, help="team size N (default 10)")
     show.add_argument("--out", type=Path, help="draw the targets with their 2R discs to this PNG")
-    for q in (p, show):
-        q.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    for q in (listing, show):
+        # Also after the action; SUPPRESS keeps a --json given before it from being reset.
+        q.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                       help="print JSON instead of text")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,6 +43,10 @@ def run(args: argparse.Namespace) -> int:
             for name, doc in d.items():
                 print(f"{name:<10} {doc}")
         return 0
+    if not 2 <= args.robots <= MAX_SHOW_ROBOTS:
+        print(f"patternrl patterns: --robots must be in 2..{MAX_SHOW_ROBOTS}, got {args.robots}",
+              file=sys.stderr)
+        return 2
     try:
         pts = make_pattern(args.pattern, args.robots)
     except PatternError as e:
@@ -67,15 +80,20 @@ def _draw(pts: object, out: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
-    from matplotlib.patches import Circle
+    from matplotlib.collections import EllipseCollection
 
     p = np.asarray(pts)
     fig, ax = plt.subplots(figsize=(5, 5))
-    for x, y in p:
-        ax.add_patch(Circle((x, y), DEFAULT_WORLD.radius_m, color="tab:blue", alpha=0.35))
+    # One collection for all discs (one patch per robot takes minutes for thousands).
+    diameter = 2.0 * DEFAULT_WORLD.radius_m
+    ax.add_collection(EllipseCollection(
+        diameter, diameter, 0.0, units="xy", offsets=p, offset_transform=ax.transData,
+        facecolors="tab:blue", alpha=0.35,
+    ))
     ax.scatter(p[:, 0], p[:, 1], s=6, color="tab:red", zorder=3)
-    for i, (x, y) in enumerate(p):
-        ax.annotate(str(i), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    if len(p) <= LABELLED_ROBOTS:
+        for i, (x, y) in enumerate(p):
+            ax.annotate(str(i), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set_aspect("equal")
     ax.margins(0.15)
     ax.set_title(title)

@@ -29,6 +29,7 @@ runs until SIGTERM or SIGINT (exit 0); bad options: one line on stderr, exit 2.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import select
 import signal
@@ -38,6 +39,8 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+
+import zenoh
 
 from runtime.errors import InputError
 from runtime.net.session import (
@@ -70,6 +73,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                 "patternrl sim/robot/swap ... --zenoh-mode client (same --swarm and port).")
 
 
+def listen_endpoints(conf: zenoh.Config) -> str:
+    """The endpoints a config listens on, comma-separated, for the ready line."""
+    try:
+        # get_json answers JSON text: a list, or an object of lists per mode
+        value = json.loads(conf.get_json("listen/endpoints"))
+    except Exception:  # a config file without listen endpoints: zenoh's default
+        value = None
+    if isinstance(value, dict):
+        value = value.get("router")
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not value:
+        return "zenoh's default endpoints"
+    return ", ".join(str(x) for x in value)
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         keys.validate_swarm(args.swarm)
@@ -94,11 +113,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"patternrl router: error: {e}", file=sys.stderr)
             return 2
         with session:
-            try:
-                listening = ", ".join(str(x) for x in conf.get_json("listen/endpoints"))
-            except Exception:  # a config file without listen endpoints: zenoh's default
-                listening = "zenoh's default endpoints"
-            print(f"{READY} {listening}", flush=True)
+            print(f"{READY} {listen_endpoints(conf)}", flush=True)
             while not stop.wait(1.0):
                 pass
         return 0

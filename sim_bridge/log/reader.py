@@ -40,8 +40,22 @@ from sim_bridge.log.columns import (
     decode_poses_pb,
     frames_of,
 )
-from sim_bridge.log.file import MESSAGE, OP_MESSAGE, RECORD, Records, Recovery, blocks
-from sim_bridge.log.layout import EVENTS_TOPIC, METRICS_TOPIC, OTHER_TOPIC, channel_kind
+from sim_bridge.log.file import (
+    MESSAGE,
+    OP_MESSAGE,
+    RECORD,
+    LogError,
+    Records,
+    Recovery,
+    blocks,
+)
+from sim_bridge.log.layout import (
+    EVENTS_TOPIC,
+    METRICS_TOPIC,
+    OTHER_TOPIC,
+    SCENE_TOPIC,
+    channel_kind,
+)
 
 MAX_LOG_STEP: Final = 10_000_000
 """The last step of a log without the world's notes (11 days at 10 Hz)."""
@@ -137,8 +151,22 @@ def _is_malformed_sample(raw: bytes) -> bool:
         return True
 
 
+PROJECT_LIBRARY_PREFIX: Final = "patternrl"
+"""How the MCAP header's ``library`` of every log the project writes begins."""
+
+
+def _is_project_log(recovery: Recovery, channels: dict[int, Any],
+                    kind: dict[int, tuple[int, int, bool]]) -> bool:
+    """Whether a readable MCAP file is a Pattern-RL log: written by the project (its
+    header says so) or carrying at least one channel of the project's layout."""
+    if recovery.library.startswith(PROJECT_LIBRARY_PREFIX):
+        return True
+    return any(k[0] != _OTHER or channels[cid].topic == SCENE_TOPIC for cid, k in kind.items())
+
+
 def read_log(path: str | Path) -> LogData:
-    """Read and decode a log (finished or cut short); :class:`LogError` if it is no log."""
+    """Read and decode a log (finished or cut short); :class:`LogError` if it is no log,
+    including a valid MCAP file another tool wrote, with none of the project's channels."""
     recovery = Recovery()
     state = Records()
     kind: dict[int, tuple[int, int, bool]] = {}
@@ -208,6 +236,10 @@ def read_log(path: str | Path) -> LogData:
             recovery.corrupted = True
             break
     recovery.messages = i
+    if not _is_project_log(recovery, state.channels, kind):
+        by = f" (written by '{recovery.library}')" if recovery.library else ""
+        raise LogError(f"{path}: not a Pattern-RL log{by}: an MCAP file with none of its "
+                       f"channels ({EVENTS_TOPIC}, robot poses, ...)")
     skipped: dict[str, int] = {}
     events: list[dict[str, Any]] = []
     metrics: list[dict[str, Any]] = []

@@ -172,7 +172,9 @@ class Membership:
     def wait_for_robots(self, n: int, timeout_s: float, stop: threading.Event) -> bool:
         """True once ``n`` robots are alive, or at least two when ``timeout_s`` passed."""
         alive = self.roster.wait_for(n, timeout_s, stop)
-        if alive < n:
+        if stop.is_set():  # stopped (Ctrl-C) while waiting: not a time-out
+            self.log.say(f"interrupted while waiting for robots ({alive} of {n} alive)")
+        elif alive < n:
             self.log.say(f"{alive} of {n} robots alive after {timeout_s:g} s")
         return alive >= 2 and not stop.is_set()
 

@@ -17,6 +17,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -170,3 +171,25 @@ def test_an_operators_swap_reaches_robot_clients_through_the_router(
         stop_processes(procs)
         for log in logs:
             log.close()
+
+
+@pytest.mark.parametrize("listen", [None, ["-l", "tls/127.0.0.1:{port}", "-l",
+                                           "tls/127.0.0.1:{port2}"]])
+def test_the_ready_line_names_the_endpoints(swarm_keys: Path, listen: list[str] | None) -> None:
+    port, port2 = free_port(), free_port()
+    extra = [x.format(port=port, port2=port2) for x in listen or []]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "patternrl.cli", "router", "--swarm", SWARM, "--zenoh-port",
+         str(port), "--tls-dir", str(swarm_keys), *extra],
+        cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.append(proc.stdout.readline()),  # type: ignore[union-attr]
+                              daemon=True)
+    reader.start()
+    try:
+        wait_for(lambda: lines or proc.poll() is not None, 60, "the router's ready line")
+    finally:
+        stop_processes([proc])
+    want = ", ".join(f"tls/127.0.0.1:{p}" for p in ((port, port2) if listen else (port,)))
+    assert lines and lines[0].rstrip("\n") == f"router ready: {want}", (lines, proc.stderr.read())  # type: ignore[union-attr]
