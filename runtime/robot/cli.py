@@ -87,8 +87,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--world-timeout-s",
         type=float,
         default=30.0,
-        help="once the world was heard, exit (code 1, one line) when it is silent this long "
-        "(default 30; 0: never)",
+        help="exit (code 1, one line) when the world is silent this long, or when no pose "
+        "came this long after the start (default 30; 0: never)",
     )
     parser.add_argument(
         "--trust",

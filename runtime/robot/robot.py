@@ -58,7 +58,8 @@ file or swap without such a signature is refused (rule brains need none).
 
 Exit codes: 0 on SIGINT/SIGTERM or ``--exit-after-silence-s``; 2 on bad input
 (missing, invalid or untrusted brain, bad pattern, bad options), with one line
-on stderr; 1 when the world is gone (``--world-timeout-s``) or on an
+on stderr; 1 when the world is gone or never came (``--world-timeout-s``: no
+pose for that long, counted from the start until the first) or on an
 unexpected failure.
 """
 
@@ -181,6 +182,7 @@ class Robot:
         self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
         self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
         self._pose_sub: zenoh.Subscriber[None] | None = None
+        self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
 
     # ------------------------------------------------------------- lifecycle
 
@@ -313,7 +315,12 @@ class Robot:
         """The watchdog: hold still without poses, resume with them; an exit code on silence."""
         cfg = self.cfg
         silent = self.inbox.silence_s(now)
-        if silent is None:
+        if silent is None:  # never heard: only the world timeout counts, from the start
+            waited = now - self._t_start
+            if cfg.world_timeout_s > 0 and waited > cfg.world_timeout_s:
+                self.log("error", "exit", f"no world: no pose in {waited:.1f} s "
+                         f"(--world-timeout-s {cfg.world_timeout_s:g}), exiting")
+                return 1
             return None
         if silent > cfg.watchdog_s and not self._holding:
             self._hold_still(f"no pose for {silent:.1f} s, holding still")

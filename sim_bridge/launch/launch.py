@@ -38,8 +38,10 @@ What it does:
 
 Ctrl-C (or SIGTERM) at any point: the world stops after its current step, every
 robot is stopped by PID, the log is finished and the table shows what was done.
-The robots also run with ``--exit-after-silence-s``, so even a launcher killed
-with SIGKILL leaves no robot behind for long.
+However the launcher ends, even killed with SIGKILL, its lifeline
+(:mod:`sim_bridge.launch.lifeline`) stops every robot and the router within
+seconds and removes the run's keys; the robots also run with
+``--exit-after-silence-s``.
 
 Exit codes: 0 only when every pattern formed; 1 otherwise (or a robot failed to
 start); 2 on bad input; 130 when interrupted.
@@ -71,6 +73,7 @@ from runtime.net.session import (
     world_port,
 )
 from sim_bridge.launch.launch_keys import RunKeys, run_keys
+from sim_bridge.launch.lifeline import Lifeline
 from sim_bridge.launch.router import RouterProcess
 from sim_bridge.live.foxglove_live import FoxgloveLive, parse_address
 from sim_bridge.log.recorder import Recorder, check_output
@@ -128,6 +131,11 @@ def free_port(preferred: int = 0) -> int:
     raise OSError("no free TCP port on 127.0.0.1")
 
 
+def start_timeout_s(args: argparse.Namespace) -> float:
+    """How long the world waits for its robots (``--start-timeout-s``)."""
+    return float(getattr(args, "start_timeout_s", 60.0))
+
+
 def topology_of(args: argparse.Namespace) -> str:
     """``router`` or ``peer``: ``--topology``, with ``auto`` decided by ``--robots``."""
     topology = getattr(args, "topology", "peer")
@@ -144,14 +152,17 @@ class Robots:
         self._log: IO[bytes] | None = None
 
     def start(self, n: int, swarm: str, port: int, brain: str, args: argparse.Namespace,
-              log_path: Path, keys_dir: Path | None = None) -> None:
-        """``keys_dir``: the swarm's keys (robot i speaks as keys_dir/robot-i); None: open TCP."""
+              log_path: Path, keys_dir: Path | None = None, group: int | None = None) -> None:
+        """``keys_dir``: the swarm's keys (robot i speaks as keys_dir/robot-i); None: open TCP.
+        ``group``: the process group of the launcher's lifeline; None: a session each."""
         self._log = open(log_path, "ab")  # closed in stop()
         for rid in range(n):
             cmd = [sys.executable, "-m", "patternrl.cli", "robot", "--swarm", swarm,
                    "--id", str(rid), "--brain", brain, "--mode", args.mode,
                    "--zenoh-port", str(port), "--safety", args.safety,
-                   "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S)]
+                   "--exit-after-silence-s", str(ROBOT_SILENCE_EXIT_S),
+                   # the world is first heard once every robot is up: wait that long
+                   "--world-timeout-s", f"{start_timeout_s(args) + ROBOT_SILENCE_EXIT_S:g}"]
             if topology_of(args) == "router":  # the router's port is `port`
                 cmd += ["--zenoh-mode", "client"]
             cmd += ["--insecure"] if keys_dir is None else ["--tls-dir", str(keys_dir)]
@@ -163,11 +174,13 @@ class Robots:
                 # for its command: on a busy machine it still decides on complete steps,
                 # so a lockstep run stays reproducible
                 cmd += ["--lockstep-deadline-s", f"{0.8 * args.step_deadline_ms / 1000.0:g}"]
-            # Own process group: a Ctrl-C reaches the launcher only, which then stops
-            # each robot by PID after finishing the log.
+            # Not the launcher's process group: a Ctrl-C reaches the launcher only, which
+            # then stops each robot by PID after finishing the log.
+            group_kw: dict[str, Any] = ({"start_new_session": True} if group is None
+                                        else {"process_group": group})
             self.procs[rid] = subprocess.Popen(
                 cmd, stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log,
-                start_new_session=True, cwd=os.getcwd())
+                cwd=os.getcwd(), **group_kw)
 
     def failed(self) -> list[tuple[int, int]]:
         """(robot, exit code) of robots that exited with an error."""
@@ -329,94 +342,102 @@ def run(args: argparse.Namespace) -> int:
         progress.clear()
         print(msg, file=err, flush=True)
 
-    try:
-        creds: RunKeys = run_keys(args, swarm)
-    except InputError as e:
-        print(f"patternrl launch: error: {e}", file=sys.stderr)
-        return 2
-    router: RouterProcess | None = None
-    try:
-        args.zenoh_port = port
-        wargs = creds.world_args(args)
-        if topology_of(args) == "router":
-            if args.connect or args.listen or args.zenoh_config or args.zenoh_mode:
-                raise InputError("-m/-e/-l/-c set up the world's own session: they go with "
-                                 f"--topology peer (auto: router above {PEER_MAX_ROBOTS} "
-                                 "robots)")
-            router = RouterProcess(swarm, port, creds.dir, robots_log)
-            router.start()
-            wargs.zenoh_mode, wargs.connect, wargs.listen = "client", [router.endpoint], []
-        session = open_config(config_from_args(wargs, "world", swarm))
-    except InputError as e:  # ZenohSetupError too
-        if router is not None:
-            router.stop()
-        creds.close()
-        print(f"patternrl launch: error: {e}", file=sys.stderr)
-        return 2
-    live: FoxgloveLive | None = None
-    try:
-        live = start_live(args.foxglove, say)
-        rec = Recorder(record, live=live)
-    except InputError as e:
-        if live is not None:
-            live.close()
-        session.close()  # type: ignore[no-untyped-call]
-        if router is not None:
-            router.stop()
-        creds.close()
-        print(f"patternrl launch: error: {e}", file=sys.stderr)
-        return 2
-    world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
-    robots = Robots()
-    interrupted = threading.Event()
+    def launch(lifeline: Lifeline) -> int:
+        try:
+            creds: RunKeys = run_keys(args, swarm, lifeline.make_dir)
+        except InputError as e:
+            print(f"patternrl launch: error: {e}", file=sys.stderr)
+            return 2
+        router: RouterProcess | None = None
+        try:
+            args.zenoh_port = port
+            wargs = creds.world_args(args)
+            if topology_of(args) == "router":
+                if args.connect or args.listen or args.zenoh_config or args.zenoh_mode:
+                    raise InputError("-m/-e/-l/-c set up the world's own session: they go with "
+                                     f"--topology peer (auto: router above {PEER_MAX_ROBOTS} "
+                                     "robots)")
+                router = RouterProcess(swarm, port, creds.dir, robots_log,
+                                       group=lifeline.group)
+                router.start()
+                wargs.zenoh_mode, wargs.connect, wargs.listen = "client", [router.endpoint], []
+            session = open_config(config_from_args(wargs, "world", swarm))
+        except InputError as e:  # ZenohSetupError too
+            if router is not None:
+                router.stop()
+            creds.close()
+            print(f"patternrl launch: error: {e}", file=sys.stderr)
+            return 2
+        live: FoxgloveLive | None = None
+        try:
+            live = start_live(args.foxglove, say)
+            rec = Recorder(record, live=live)
+        except InputError as e:
+            if live is not None:
+                live.close()
+            session.close()  # type: ignore[no-untyped-call]
+            if router is not None:
+                router.stop()
+            creds.close()
+            print(f"patternrl launch: error: {e}", file=sys.stderr)
+            return 2
+        world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
+        robots = Robots()
+        interrupted = threading.Event()
 
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        interrupted.set()
-        world.stop()
+        def on_signal(signum: int, _frame: FrameType | None) -> None:
+            interrupted.set()
+            world.stop()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    watcher_stop = threading.Event()
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        watcher_stop = threading.Event()
 
-    def watch() -> None:  # a robot that dies at start would leave the world waiting
-        while not watcher_stop.wait(0.2):
-            bad = robots.failed()
-            if bad and world.step == 0:
-                say("robot(s) failed to start: " + ", ".join(f"{r} (exit {c})" for r, c in bad)
-                    + f"; see {robots_log}")
-                world.stop()
-                return
+        def watch() -> None:  # a robot that dies at start would leave the world waiting
+            while not watcher_stop.wait(0.2):
+                bad = robots.failed()
+                if bad and world.step == 0:
+                    say("robot(s) failed to start: "
+                        + ", ".join(f"{r} (exit {c})" for r, c in bad) + f"; see {robots_log}")
+                    world.stop()
+                    return
 
-    first = brains[patterns[0]].ref
-    hub = "router" if router is not None else "world, peers"
-    say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
-        f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
-    res: RunResult | None = None
-    try:
-        world.open()  # listening before the robots come: their first status says their brain
-        robots.start(args.robots, swarm, port, first, args, robots_log, creds.dir)
-        watcher = threading.Thread(target=watch, name="robot-watch", daemon=True)
-        watcher.start()
-        res = world.run()
-    finally:
-        watcher_stop.set()
-        progress.clear()
-        robots.stop()
-        rec.close()
-        if live is not None:
-            live.close()
-        session.close()  # type: ignore[no-untyped-call]
-        if router is not None:  # last: the world's final messages go through it
-            router.stop()
-        creds.close()
-        for s, h in old.items():
-            signal.signal(s, h)
-    assert res is not None  # world.run() returned (it raises only on a bug)
-    png = None if args.no_plot or not res.phases else draw_figure(record, args.robots,
-                                                                   patterns, say)
-    failed_start = bool(robots.failed()) and res.steps == 0
-    print_report(res, args.json, brains, record, robots_log, png, failed_start, out)
-    if failed_start:
-        return 1
-    if interrupted.is_set() or res.outcome == "interrupted":
-        return 130
-    return 0 if res.all_formed else 1
+        first = brains[patterns[0]].ref
+        hub = "router" if router is not None else "world, peers"
+        say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
+            f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
+        res: RunResult | None = None
+        try:
+            world.open()  # listening before the robots come: their first status says their brain
+            robots.start(args.robots, swarm, port, first, args, robots_log, creds.dir,
+                         lifeline.group)
+            watcher = threading.Thread(target=watch, name="robot-watch", daemon=True)
+            watcher.start()
+            res = world.run()
+        finally:
+            watcher_stop.set()
+            progress.clear()
+            robots.stop()
+            rec.close()
+            if live is not None:
+                live.close()
+            session.close()  # type: ignore[no-untyped-call]
+            if router is not None:  # last: the world's final messages go through it
+                router.stop()
+            creds.close()
+            for s, h in old.items():
+                signal.signal(s, h)
+        assert res is not None  # world.run() returned (it raises only on a bug)
+        png = None if args.no_plot or not res.phases else draw_figure(record, args.robots,
+                                                                       patterns, say)
+        failed_start = bool(robots.failed()) and res.steps == 0
+        print_report(res, args.json, brains, record, robots_log, png, failed_start, out)
+        if failed_start:
+            return 1
+        if interrupted.is_set() or res.outcome == "interrupted":
+            return 130
+        return 0 if res.all_formed else 1
+
+    # every child joins the lifeline's process group: whatever way this process ends,
+    # they end with it, and the keys made for the run go
+    with Lifeline() as lifeline:
+        return launch(lifeline)

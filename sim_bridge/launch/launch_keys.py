@@ -1,7 +1,8 @@
 """The identities of one ``patternrl launch`` run: made for the run, or the user's, or none.
 
 By default the launcher makes a fresh swarm authority and one identity per
-member in a private temporary directory (removed when the run ends), so the
+member in a private temporary directory (removed when the run ends, and by the
+launcher's reaper, :mod:`sim_bridge.launch.lifeline`, if the launcher dies), so the
 demo runs with mutual TLS and access control with nothing to set up; its
 ``operator`` identity is printed, for ``patternrl swap --identity`` during the
 run. ``--tls-dir DIR`` uses keys made by ``patternrl keys create`` instead;
@@ -11,7 +12,9 @@ run. ``--tls-dir DIR`` uses keys made by ``patternrl keys create`` instead;
 from __future__ import annotations
 
 import argparse
+import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,7 +29,7 @@ class RunKeys:
 
     dir: Path | None
     note: str
-    _tmp: tempfile.TemporaryDirectory[str] | None = field(default=None, repr=False)
+    _made: Path | None = field(default=None, repr=False)
 
     @property
     def scheme(self) -> str:
@@ -41,13 +44,21 @@ class RunKeys:
 
     def close(self) -> None:
         """Remove keys made for this run (never the user's own)."""
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
+        if self._made is not None:
+            shutil.rmtree(self._made, ignore_errors=True)
+            self._made = None
 
 
-def run_keys(args: argparse.Namespace, swarm: str) -> RunKeys:
-    """The run's identities from ``--insecure`` / ``--tls-dir``; InputError on a bad mix."""
+def _temporary_dir() -> Path:
+    return Path(tempfile.mkdtemp(prefix="patternrl-keys-"))
+
+
+def run_keys(args: argparse.Namespace, swarm: str,
+             make_dir: Callable[[], Path] = _temporary_dir) -> RunKeys:
+    """The run's identities from ``--insecure`` / ``--tls-dir``; InputError on a bad mix.
+
+    ``make_dir``: makes the private directory of keys made for the run (the launcher's
+    :meth:`sim_bridge.launch.lifeline.Lifeline.make_dir`)."""
     if getattr(args, "identity", None) is not None or getattr(args, "identity_as", None):
         raise InputError("launch speaks as every member of its swarm: give --tls-dir DIR "
                          "(from 'patternrl keys create'), not --identity/--as")
@@ -65,10 +76,10 @@ def run_keys(args: argparse.Namespace, swarm: str) -> RunKeys:
             raise InputError(f"--tls-dir {tls_dir} has identities for {world.robots} robots, "
                              f"not {args.robots}")
         return RunKeys(Path(tls_dir), f", mutual TLS, keys {tls_dir}")
-    tmp = tempfile.TemporaryDirectory(prefix="patternrl-keys-")
+    tmp = make_dir()
     try:
-        made = create_swarm_keys(Path(tmp.name), swarm, max(int(args.robots), 1))
+        made = create_swarm_keys(tmp, swarm, max(int(args.robots), 1))
     except BaseException:
-        tmp.cleanup()
+        shutil.rmtree(tmp, ignore_errors=True)
         raise
     return RunKeys(made.out, f", mutual TLS; operator identity {made.out / OPERATOR}", tmp)

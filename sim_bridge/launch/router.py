@@ -39,6 +39,7 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 import zenoh
 
@@ -126,13 +127,16 @@ class RouterProcess:
     """A ``patternrl router`` child process: started, waited for, stopped by its PID.
 
     ``keys_dir`` None: open TCP (``--insecure``); else the swarm's keys directory
-    (the router speaks as ``keys_dir/router``).
+    (the router speaks as ``keys_dir/router``). ``group``: the process group to start
+    it in (the launcher's lifeline, :mod:`sim_bridge.launch.lifeline`); None: a
+    session of its own.
     """
 
     def __init__(self, swarm: str, port: int, keys_dir: Path | None,
-                 log_path: Path | None = None) -> None:
+                 log_path: Path | None = None, group: int | None = None) -> None:
         self.swarm, self.port, self.keys_dir = swarm, port, keys_dir
         self.log_path = log_path
+        self.group = group
         self.proc: subprocess.Popen[bytes] | None = None
 
     @property
@@ -147,9 +151,12 @@ class RouterProcess:
         cmd += ["--insecure"] if self.keys_dir is None else ["--tls-dir", str(self.keys_dir)]
         err = open(self.log_path, "ab") if self.log_path else subprocess.DEVNULL
         try:
-            # own session: a Ctrl-C reaches the launcher only, which stops the router last
+            # not the caller's process group: a Ctrl-C reaches the launcher only, which
+            # stops the router last
+            group_kw: dict[str, Any] = ({"start_new_session": True} if self.group is None
+                                        else {"process_group": self.group})
             self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                         stderr=err, start_new_session=True, cwd=os.getcwd())
+                                         stderr=err, cwd=os.getcwd(), **group_kw)
         finally:
             if self.log_path:
                 err.close()  # type: ignore[union-attr]

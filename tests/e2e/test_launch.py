@@ -182,7 +182,7 @@ def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -
     try:
         kit.wait_for(lambda: watcher.step() >= 5, 60, "the launched world to run 5 steps")
         kids = kit.children_of(launch.pid)
-        assert len(kids) == 3
+        assert len(kids) == 4  # 3 robots and the lifeline's reaper
         launch.send_signal(signal.SIGINT)  # what Ctrl-C delivers to the launcher
         assert launch.wait(timeout=30) == 130, procs.log("launch")
     finally:
