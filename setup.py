@@ -31,7 +31,8 @@ def extensions() -> list[Extension]:
         )
         for p in COMPILED
     ]
-    return list(cythonize(exts, language_level=3, quiet=True))
+    # the C that Cython writes goes to build/, beside nothing of the source tree
+    return list(cythonize(exts, language_level=3, quiet=True, build_dir="build/cython"))
 
 
 setup(ext_modules=extensions())
