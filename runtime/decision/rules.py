@@ -147,25 +147,14 @@ def plan_step(
 class PlanFrame:
     """:func:`plan_targets` for one team, step after step: the robot's path.
 
-    The same numbers (to the support's slack) with less work: the smallest
-    circle enclosing the displacements is first tried as the circle of the last
-    step's support (the two or three displacements on its boundary). That circle
-    is the smallest of all exactly when it encloses every displacement (the
-    smallest circle of a subset is never larger, and the smallest one is unique),
-    which under the plan holds step after step (the displacements shrink
-    homothetically); otherwise Welzl's algorithm runs and finds the new support.
-    A displacement at most :data:`runtime.core.plan_frame.SUPPORT_SLACK_M` (0.1 mm)
-    outside the old support's circle keeps it: a team holding its pattern jitters
-    by tens of micrometres (a learned brain's small residual), which would
-    otherwise re-solve every step, and the frame then moves by at most that slack,
-    far below the formed tolerance (25 mm). The solve is
-    :func:`runtime.core.plan_frame.plan_frame`; this object holds the support and
-    the scratch between steps.
+    The solve is :func:`runtime.core.plan_frame.plan_frame`, which keeps the last
+    step's support (the displacements on the smallest enclosing circle) and tries
+    it first (see there for why that circle stays the smallest under the plan, and
+    for the slack that keeps a formed team from re-solving). This object holds the
+    support and the scratch between steps.
     """
 
-    def __init__(self, compiled: bool | None = None) -> None:
-        """``compiled`` is accepted for the callers that pass it and has no effect: the
-        solve is :mod:`runtime.core.plan_frame`, compiled when the install built it."""
+    def __init__(self) -> None:
         self._sup = np.zeros(4, dtype=np.int64)  # the support: [count, j0, j1, j2]
         self._d = np.zeros((0, 2))  # the displacements (scratch)
 
