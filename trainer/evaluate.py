@@ -13,9 +13,14 @@ Episode ``e`` is the first episode of env ``e`` of a world seeded with
 Reported (``--json`` prints one object with these keys):
 
 =================== ==============================================================
-success_rate        formed within the step limit with no collision, fraction
+success_rate        formed within the step limit with no collision, and held (at least
+                    90 % of the next ``--hold-steps`` steps still formed), fraction
 formed_rate         formed within the step limit, collisions or not
-collisions          colliding pairs summed over all episodes (and per episode)
+collisions          colliding pairs summed over all episodes (and per episode),
+                    the hold window's included
+held_rate           of the formed episodes, the share that held
+hold_share          of the formed episodes, the mean share of the window formed
+conditions          the sensing and wheels (``--conditions``, ``runtime.conditions``)
 steps_ratio         mean over formed episodes of steps / lower-bound steps
 travel_ratio        mean over formed episodes of travel / lower-bound travel
 formation_error     mean final formation error (m)
@@ -45,12 +50,20 @@ from typing import Any
 import numpy as np
 
 from runtime.brain.brain import Brain, BrainError, load_brain
+from runtime.conditions import PERFECT, Conditions, parse_conditions
 from runtime.decision.formation import min_swept_separation
+from runtime.decision.local import LocalDecisions
 from runtime.decision.patterns import PatternError, pattern_label
 from runtime.decision.pipeline import decide_batch
 from runtime.decision.safety import OrcaParams
+from runtime.errors import InputError
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.world.training_world import BatchWorld, check_pattern
+
+HOLD_STEPS = 20
+"""After a team first forms, it is watched this many steps more."""
+HOLD_SHARE = 0.9
+"""A formation holds when it is formed at this share of the watched steps or more."""
 
 DEFAULT_EVAL_SEED = 1_000_000
 """Training uses ``--seed`` (default 0) and selects checkpoints on ``seed + 1_000_003``."""
@@ -78,6 +91,15 @@ class EvalResult:
     min_separation_m: float = math.nan
     orca: dict[str, float] | None = None
     """The safety filter's parameters (None with the filter off)."""
+    conditions: str = "perfect"
+    """The conditions' preset name or spec (``runtime.conditions``)."""
+    estimator: bool = False
+    hold_steps: int = 0
+    """Steps watched after the first passage (0: success at the first passage)."""
+    held_rate: float = math.nan
+    """Of the formed episodes, the share that held (>= HOLD_SHARE of the window formed)."""
+    hold_share: float = math.nan
+    """Of the formed episodes, the mean share of the hold window's steps formed."""
     episode_stats: dict[str, list[float]] = field(default_factory=dict, repr=False)
     """Per episode (index e = env e): formed, steps, travel_m, lower_bound_steps,
     lower_bound_travel_m, collisions, min_separation_m."""
@@ -125,8 +147,16 @@ def evaluate_brain(
     world: WorldConfig = DEFAULT_WORLD,
     progress: bool | None = None,
     label: str = "",
+    conditions: Conditions = PERFECT,
+    estimator: bool = False,
+    hold_steps: int = HOLD_STEPS,
 ) -> EvalResult:
-    """Run ``episodes`` seeded episodes with the brain deciding as on a robot."""
+    """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
+
+    Under perfect sensing (and without the estimator) every robot of a team sees the same
+    team, and one batch decision per step serves them all; otherwise each robot decides on
+    its own view (:class:`runtime.decision.local.LocalDecisions`). The wheels of
+    ``conditions`` act in the world either way."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -137,7 +167,13 @@ def evaluate_brain(
         seed=seed,
         compute_bounds=True,
         build_obs=False,
+        conditions=conditions,
+        hold_steps=hold_steps,
     )
+    local = None
+    if estimator or not conditions.sensing_perfect:
+        local = LocalDecisions(brain, episodes, n_robots, conditions, estimator=estimator,
+                               safety=safety, seed=seed, world=world)
     E = episodes
     done = np.zeros(E, bool)
     formed = np.zeros(E, bool)
@@ -148,6 +184,7 @@ def evaluate_brain(
     collisions = np.zeros(E, np.int64)
     error = np.zeros(E)
     min_sep = np.full(E, np.inf)
+    held = np.zeros(E)
     dt = world.dt_s
     changed_steps = 0
     robot_steps = 0
@@ -157,9 +194,14 @@ def evaluate_brain(
         while not done.all():
             live = np.flatnonzero(~done)
             vel = np.zeros((E, n_robots, 2))
-            v, slots, changed = decide_batch(
-                brain, bw.frames[live], bw.pattern[live], prev_slots[live], safety, world
-            )
+            if local is not None:
+                v_all, slots_all, changed_all = local.decide(bw.frames[:, 0], bw.pattern,
+                                                             ~done)
+                v, slots, changed = v_all[live], slots_all[live], changed_all[live]
+            else:
+                v, slots, changed = decide_batch(
+                    brain, bw.frames[live], bw.pattern[live], prev_slots[live], safety, world
+                )
             vel[live] = v
             p0 = bw.frames[live, 0]
             swept = min_swept_separation(p0, p0 + dt * v)  # the moves as commanded
@@ -179,13 +221,16 @@ def evaluate_brain(
             assert ep.lower_bound_steps is not None and ep.lower_bound_travel is not None
             lb_steps[ids] = np.maximum(ep.lower_bound_steps[new], 1)
             lb_travel[ids] = np.maximum(ep.lower_bound_travel[new], 1e-9)
+            if ep.held is not None:
+                held[ids] = ep.held[new]
             done[ids] = True
             if bar is not None:
                 bar.update(len(ids))
     finally:
         if bar is not None:
             bar.close()
-    ok = formed & (collisions == 0)
+    holds = held >= HOLD_SHARE if hold_steps else formed
+    ok = formed & (collisions == 0) & holds
     manifest = getattr(brain, "manifest", None)
     return EvalResult(
         brain=str(getattr(manifest, "file", "") or brain.brain_id),
@@ -207,6 +252,11 @@ def evaluate_brain(
         safety_interventions=changed_steps / max(robot_steps, 1),
         wall_s=time.perf_counter() - t0,
         min_separation_m=float(min_sep.min()),
+        conditions=conditions.name(),
+        estimator=estimator,
+        hold_steps=hold_steps,
+        held_rate=float(holds[formed].mean()) if hold_steps and formed.any() else math.nan,
+        hold_share=float(held[formed].mean()) if hold_steps and formed.any() else math.nan,
         episode_stats={
             "formed": formed.astype(float).tolist(),
             "steps": steps.tolist(),
@@ -215,6 +265,7 @@ def evaluate_brain(
             "lower_bound_travel_m": lb_travel.tolist(),
             "collisions": collisions.astype(float).tolist(),
             "min_separation_m": min_sep.tolist(),
+            "held": held.tolist(),
         },
     )
 
@@ -252,7 +303,11 @@ def format_table(r: EvalResult) -> str:
         ("task", f"{r.pattern}, {r.n_robots} robots, {r.episodes} episodes, seed {r.seed}"),
         ("safety filter", r.safety),
         ("success", f"{pct(r.success_rate)}  (formed, no collision, within the step limit)"),
-        ("formed", pct(r.formed_rate)),
+        ("formed", pct(r.formed_rate) + "  (first passage)"),
+        ("held", "-" if not r.hold_steps else
+         f"{pct(r.held_rate)} of the formed held  (mean {pct(r.hold_share)} of the next "
+         f"{r.hold_steps} steps formed)"),
+        ("conditions", r.conditions + ("  + estimator" if r.estimator else "")),
         ("collisions", f"{r.collisions} total, {r.collisions_per_episode:.3f} per episode"),
         ("steps", f"{ratio(r.steps_ratio)} the lower bound (mean {r.mean_steps:.1f})"),
         ("travel", f"{ratio(r.travel_ratio)} the lower bound"),
@@ -301,6 +356,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="keep the full horizon at the end of a plan too (default: a team on a "
         "synchronised plan filters with the plan's time left when shorter, as on a robot)",
     )
+    p.add_argument(
+        "--conditions",
+        default="perfect",
+        help="sensing and wheels: a preset (perfect, realistic, harsh) with field=value "
+        "overrides, e.g. 'realistic,latency_steps=2' (default perfect); each robot then "
+        "decides on its own view",
+    )
+    p.add_argument("--estimator", action="store_true",
+                   help="each robot tracks its peers (alpha-beta filter with latency "
+                   "compensation) and decides on the estimates")
+    p.add_argument("--hold-steps", type=int, default=HOLD_STEPS,
+                   help=f"steps watched after the team first forms; a success holds the "
+                   f"formation {HOLD_SHARE:.0%} of them (default {HOLD_STEPS}; 0: success "
+                   f"at the first passage)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -339,8 +408,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         check_pattern(pattern, n)
-    except PatternError as e:
+        conditions = parse_conditions(args.conditions)
+    except (PatternError, InputError) as e:
         print(f"patternrl eval: {e}", file=sys.stderr)
+        return 2
+    if args.hold_steps < 0:
+        print("patternrl eval: --hold-steps must be >= 0", file=sys.stderr)
         return 2
     res = evaluate_brain(
         brain,
@@ -354,6 +427,9 @@ def run(args: argparse.Namespace) -> int:
         else None,
         progress=False if args.no_progress else None,
         label=Path(args.brain).stem,
+        conditions=conditions,
+        estimator=args.estimator,
+        hold_steps=args.hold_steps,
     )
     if args.json:
         print(json.dumps(res.to_dict(), allow_nan=False))

@@ -181,6 +181,7 @@ class Controller:
         positions: Array,
         pattern: Array,
         step: int | None = None,
+        velocities: Array | None = None,
     ) -> Decision:
         """Decide robot ``robot_index``'s velocity for this step.
 
@@ -190,6 +191,9 @@ class Controller:
         centred copy is cached). ``step``: the world step these poses belong
         to; a repeated step refreshes the newest frame instead of shifting the
         history (realtime mode deciding faster than the world steps).
+        ``velocities``: (n, 2) m/s, the team's velocities as an estimator has them
+        (:class:`runtime.decision.estimator.PeerTracker`); None: the difference of the
+        last two frames / dt.
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.
         """
@@ -206,8 +210,11 @@ class Controller:
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one
         V = self._vel
-        np.subtract(pos, self._frames[1], out=V[0])
-        V /= self.world.dt_s
+        if velocities is None:
+            np.subtract(pos, self._frames[1], out=V[0])
+            V /= self.world.dt_s
+        else:
+            V[0] = velocities
         try:  # 2-4. target, observe, act
             bvx, bvy, steps_left = self._act(i, P, V, slots, cx, cy)
         except Exception:  # a brain must never take the loop down

@@ -22,11 +22,13 @@ take NumPy arrays of any matching shape (one robot or a batch) and scalars.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from runtime.types import Array
 
-__all__ = ["diff_drive", "diff_drive_step", "wrap_angle"]
+__all__ = ["Wheels", "diff_drive", "diff_drive_step", "wrap_angle"]
 
 STILL_MPS = 1e-6
 """A command slower than this (m/s) leaves the heading as it is."""
@@ -87,3 +89,45 @@ def diff_drive_step(
     forward, rate = diff_drive(vx, vy, heading, max_turn_rps, dt_s, reverse=reverse)
     h_new = wrap_angle(np.asarray(heading, dtype=np.float64) + rate * dt_s)
     return forward * np.cos(h_new), forward * np.sin(h_new), h_new
+
+
+class Wheels:
+    """How E teams of N robots execute their commands under ``conditions``: each robot's
+    wheel gain (drawn per episode in [1 - gain_noise, 1 + gain_noise]), Gaussian
+    actuation noise per step, and a differential-drive base's heading (drawn per
+    episode, uniform). One generator per env, apart from the world's start draws."""
+
+    def __init__(self, conditions: Any, n_envs: int, n_robots: int,
+                 seeds: list[np.random.SeedSequence], dt_s: float) -> None:
+        self.conditions = conditions
+        self.dt_s = dt_s
+        self._rngs = [np.random.default_rng(s) for s in seeds]
+        self.gain = np.ones((n_envs, n_robots))
+        self.heading = np.zeros((n_envs, n_robots))
+        self.reset(np.arange(n_envs))
+
+    def reset(self, env_ids: Any) -> None:
+        """A new episode in these envs: fresh gains and headings."""
+        c = self.conditions
+        n = self.gain.shape[1]
+        for e in np.asarray(env_ids, dtype=np.int64):
+            rng = self._rngs[e]
+            self.gain[e] = 1.0 + rng.uniform(-c.gain_noise, c.gain_noise, n) \
+                if c.gain_noise > 0 else 1.0
+            self.heading[e] = rng.uniform(-np.pi, np.pi, n) if c.kinematics == "diff" else 0.0
+
+    def apply(self, command: Array) -> Array:
+        """The velocities (E, N, 2) m/s the robots move at for ``command`` (E, N, 2) m/s."""
+        c = self.conditions
+        u = np.nan_to_num(np.asarray(command, dtype=np.float64), nan=0.0, posinf=0.0,
+                          neginf=0.0)
+        if c.kinematics == "diff":
+            vx, vy, self.heading = diff_drive_step(u[..., 0], u[..., 1], self.heading,
+                                                   c.turn_rate_rps, self.dt_s)
+            u = np.stack([vx, vy], axis=-1)
+        u = u * self.gain[..., None]
+        if c.act_noise_mps > 0:
+            moving = (np.abs(u).sum(-1) > 0)[..., None]  # a robot at rest stays at rest
+            for e, rng in enumerate(self._rngs):
+                u[e] += moving[e] * rng.normal(0.0, c.act_noise_mps, u[e].shape)
+        return u

@@ -78,12 +78,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
 
+from runtime.conditions import Conditions
 from runtime.core.orca import CHANGE_TOL_MPS, OrcaFilter, clamp_speed
+from runtime.decision.estimator import steady_sigma
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
@@ -94,6 +96,8 @@ __all__ = [
     "landing",
     "make_filter",
     "orca_filter",
+    "uncertainty_margin",
+    "uncertainty_params",
 ]
 
 Vec2 = tuple[float, float] | Sequence[float] | npt.NDArray[np.floating]
@@ -137,6 +141,49 @@ def landing(params: OrcaParams, steps_left: float | None,
         return params.time_horizon_s
     horizon = max(float(steps_left), 1.0) * world.dt_s
     return horizon if horizon < params.time_horizon_s else params.time_horizon_s
+
+
+def uncertainty_margin(conditions: Conditions, estimator: bool = False,
+                       world: WorldConfig = DEFAULT_WORLD) -> float:
+    """How much (m) a robot widens each robot's radius for the uncertainty it knows it has.
+
+    A pair is kept ``2 (R + margin)`` apart as the robot sees it; the truth may differ by
+    the peer's position error and by what the wheels did not do as asked. Per robot:
+
+    * sensing: ``MARGIN_SIGMAS`` sigma of the peer's position error -- the raw noise, or
+      with the estimator what its filter leaves (:func:`runtime.decision.estimator.steady_sigma`);
+    * latency: a late view without the estimator's extrapolation misplaces a moving peer
+      by its motion over the latency; with it, by a change of velocity over the latency,
+      taken as a quarter of full speed per late step;
+    * wheels: the gain spread and the actuation noise over one step, and a differential
+      drive base's sideways error (the command's part it cannot drive this step, at most
+      a step at full speed times ``sin(turn rate dt)``).
+    Loss adds nothing here: a lost update makes a view late, and the estimator's sigma
+    grows with it (the fixed margin covers the stated conditions; see the table in
+    ``benchmarks/conditions.py`` for where it stops holding).
+    """
+    reach = world.v_max_mps * world.dt_s
+    sigma = steady_sigma(conditions.noise_m) if estimator else conditions.noise_m
+    late = conditions.latency_steps * reach * (0.25 if estimator else 1.0)
+    wheels = (conditions.gain_noise * reach + MARGIN_SIGMAS * conditions.act_noise_mps
+              * world.dt_s)
+    if conditions.kinematics == "diff":
+        wheels += reach * math.sin(min(conditions.turn_rate_rps * world.dt_s, math.pi / 2))
+    return 0.5 * (MARGIN_SIGMAS * sigma * math.sqrt(2.0) + late) + wheels
+
+
+MARGIN_SIGMAS = 2.0
+"""Sensing and actuation errors are covered to this many standard deviations."""
+
+
+def uncertainty_params(params: OrcaParams, conditions: Conditions, estimator: bool = False,
+                       world: WorldConfig = DEFAULT_WORLD) -> OrcaParams:
+    """``params`` with the radius margin widened by :func:`uncertainty_margin` (the same
+    params under perfect conditions)."""
+    extra = uncertainty_margin(conditions, estimator, world)
+    if extra <= 0.0:
+        return params
+    return replace(params, radius_margin_m=params.radius_margin_m + extra)
 
 
 def make_filter(params: OrcaParams | None, world: WorldConfig = DEFAULT_WORLD) -> OrcaFilter:

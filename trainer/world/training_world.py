@@ -61,8 +61,10 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from runtime.conditions import PERFECT, Conditions
 from runtime.core.assignment import assign_teams
 from runtime.decision.formation import assign_slots_batch, lower_bounds
+from runtime.decision.kinematics import Wheels
 from runtime.decision.observation import ObservationSpec, general_observation, observe
 from runtime.decision.patterns import make_pattern, random_pattern
 from runtime.decision.rules import plan_targets
@@ -99,6 +101,8 @@ class EpisodeStats(NamedTuple):
     final_positions: Array  # (k, N, 2) where the robots ended (m)
     lower_bound_steps: IntArray | None  # (k,) when compute_bounds
     lower_bound_travel: Array | None  # (k,) metres, when compute_bounds
+    first_formed: IntArray | None = None  # (k,) step first formed (-1: never), with hold_steps
+    held: Array | None = None  # (k,) share of the hold window's steps formed, with hold_steps
 
 
 class StepResult(NamedTuple):
@@ -148,6 +152,8 @@ class BatchWorld:
         build_obs: bool = True,
         first_env: int = 0,
         rank_goals: bool = False,
+        conditions: Conditions = PERFECT,
+        hold_steps: int = 0,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -162,6 +168,10 @@ class BatchWorld:
             raise ValueError(f"{n_robots} robots do not fit apart in a {world.arena_m} m arena")
         if first_env < 0:
             raise ValueError(f"first_env must be >= 0, got {first_env}")
+        if hold_steps < 0:
+            raise ValueError(f"hold_steps must be >= 0, got {hold_steps}")
+        self.conditions = conditions
+        self.hold_steps = int(hold_steps)
         self.n_envs = n_envs
         self.first_env = first_env
         self.n_robots = n_robots
@@ -182,6 +192,14 @@ class BatchWorld:
         self._no_obs: F32Array = np.zeros((E, N, 0), dtype=np.float32)
         self._no_obs.flags.writeable = False
         self._rngs = self._spawn_rngs(seed)
+        self.wheels: Wheels | None = None  # the conditions' actuation, apart from the starts
+        if not conditions.acting_perfect:
+            wheel_seeds = np.random.SeedSequence((seed, 1)).spawn(first_env + n_envs)
+            self.wheels = Wheels(conditions, n_envs, n_robots, wheel_seeds[first_env:],
+                                 world.dt_s)
+        self.first_formed: IntArray = np.full(n_envs, -1, dtype=np.int64)
+        self.held_steps: IntArray = np.zeros(n_envs, dtype=np.int64)
+        self.travel_at_formed: Array = np.zeros(n_envs)
         self._cache: dict[str, Array] = {}
         self.patterns: tuple[str, ...] = ()
         self._set_pattern_names(_pattern_list(patterns))
@@ -363,6 +381,8 @@ class BatchWorld:
         for e in ids:
             self._draw_pattern(int(e))
         self.frames[ids] = self._draw_starts(ids)[:, None]
+        if self.wheels is not None:
+            self.wheels.reset(ids)
         self._begin_episodes(ids)
 
     def _begin_episodes(self, ids: IntArray) -> None:
@@ -388,6 +408,8 @@ class BatchWorld:
         self._dist[:, ids] = np.sqrt(dist2)
         self._travel[:, ids] = 0.0
         self.steps[ids] = 0
+        self.first_formed[ids] = -1
+        self.held_steps[ids] = 0
         self.episode_collisions[ids] = 0
         self.episode_return[ids] = 0.0
         if self.compute_bounds:
@@ -467,7 +489,19 @@ class BatchWorld:
         self.episode_return += reward.sum(axis=0) * (1.0 / self.n_robots)
 
     def _done(self, formed: BoolArray) -> tuple[BoolArray, BoolArray]:
-        """(truncated, done), (E,) each: the step limit reached unformed; formed or truncated."""
+        """(truncated, done), (E,) each: the step limit reached unformed; formed or truncated.
+
+        With ``hold_steps`` H, an episode that formed goes on for H more steps (the hold
+        window, counted in ``held_steps``) and ends after them."""
+        if self.hold_steps:
+            ff = self.first_formed
+            window = (ff >= 0) & (self.steps > ff)
+            self.held_steps += window & formed
+            first = np.flatnonzero((ff < 0) & formed)
+            ff[first] = self.steps[first]
+            self.travel_at_formed[first] = self._travel[:, first].sum(axis=0)
+            truncated = (self.steps >= self.step_limit) & (ff < 0)
+            return truncated, truncated | ((ff >= 0) & (self.steps - ff >= self.hold_steps))
         truncated = self.steps >= self.step_limit
         truncated &= ~formed
         return truncated, formed | truncated
@@ -475,12 +509,23 @@ class BatchWorld:
     def _finish(self, ended: IntArray, formed: BoolArray, obs: F32Array) -> EpisodeStats:
         """Statistics of the episodes of ``ended`` (before their reset), from this step's state."""
         bounds = self.compute_bounds
+        steps = self.steps[ended]
+        travel = self._travel[:, ended].sum(axis=0)
+        first = held = None
+        if self.hold_steps:  # formed: at the first passage; steps: up to it
+            first = self.first_formed[ended]
+            formed = np.zeros_like(formed)
+            formed[ended] = first >= 0
+            steps = np.where(first >= 0, first, steps)
+            travel = np.where(first >= 0, self.travel_at_formed[ended], travel)
+            held = self.held_steps[ended] / self.hold_steps
         return EpisodeStats(
-            ended, formed[ended], self.steps[ended], self._travel[:, ended].sum(axis=0),
+            ended, formed[ended], steps, travel,
             self.episode_collisions[ended], self.error[ended], self.episode_return[ended],
             self.pattern_ids[ended], obs[ended], self.frames[ended, 0],
             self.lower_bound_steps[ended] if bounds else None,
             self.lower_bound_travel[ended] if bounds else None,
+            first, held,
         )  # fancy indexing copies: the statistics do not change with the world
 
     def step(self, actions: NDArray[np.floating]) -> StepResult:
@@ -488,7 +533,9 @@ class BatchWorld:
 
         Shapes inside: robot-major (2, N, E) and (N, E); returned (E, N, ...).
         """
-        # 1-3. actions -> velocities, kinematics, contacts; travel added in place
+        # 1-3. actions -> velocities (the conditions' wheels), kinematics, contacts
+        if self.wheels is not None:
+            actions = self.wheels.apply(actions)
         X1, hits, collisions, falls = move(actions, self._X, self._travel, self.world)
         self.episode_collisions += collisions
         self.contact_fallbacks += falls

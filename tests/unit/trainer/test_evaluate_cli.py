@@ -26,3 +26,30 @@ def test_eval_takes_a_team_of_two(capsys: pytest.CaptureFixture[str]) -> None:
             "--episodes", "1", "--no-progress", "--json"]
     assert main(argv) == 0
     assert '"n_robots": 2' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("spec", ["realistic,noise_m=-1", "windy"])
+def test_eval_refuses_bad_conditions_in_one_line(
+    spec: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["eval", "--brain", "rule:assign", "--pattern", "line", "--robots", "4",
+            "--episodes", "1", "--no-progress", "--conditions", spec]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("patternrl eval: conditions:")
+
+
+def test_eval_under_conditions_reports_them_and_the_hold(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    argv = ["eval", "--brain", "rule:frame-balanced", "--pattern", "circle", "--robots", "5",
+            "--episodes", "2", "--no-progress", "--json", "--conditions",
+            "realistic,kinematics=diff", "--estimator", "--hold-steps", "10"]
+    assert main(argv) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["conditions"].startswith("perfect,noise_m=0.05") and "kinematics=diff" in d[
+        "conditions"]
+    assert d["estimator"] is True and d["hold_steps"] == 10
+    assert 0.0 <= d["success_rate"] <= d["formed_rate"] <= 1.0

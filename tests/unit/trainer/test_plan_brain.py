@@ -201,12 +201,13 @@ def test_the_landing_horizon_is_the_plans_time_left() -> None:
 @pytest.mark.parametrize("pattern,n", [("circle", 13), ("heart", 7)])
 def test_landing_saves_the_plans_last_steps_and_keeps_2r(pattern: str, n: int) -> None:
     """A synchronised team behind the filter: with the landing horizon it forms in fewer
-    steps, with no collision and no pair closer than 2R along the commanded moves."""
+    steps, with no collision and no pair closer than 2R along the commanded moves; and it
+    holds the formation, where the full horizon's filter keeps nudging parked robots."""
     rule = FrameRule("rule:frame-balanced")
     kw = {"seed": 424242 + n, "progress": False}
     fixed = evaluate_brain(rule, pattern, n, 6, safety=OrcaParams(landing=False), **kw)
     landed = evaluate_brain(rule, pattern, n, 6, safety=OrcaParams(), **kw)
-    assert fixed.success_rate == landed.success_rate == 1.0
+    assert fixed.formed_rate == landed.success_rate == landed.held_rate == 1.0
     assert landed.collisions == 0
     assert landed.min_separation_m >= DEFAULT_WORLD.min_separation_m
     assert np.mean(landed.episode_stats["steps"]) < np.mean(fixed.episode_stats["steps"])

@@ -1,0 +1,149 @@
+"""Brains and rules under real-world conditions: success, collisions, steps, and whether it holds.
+
+Each case is one condition of ``runtime.conditions`` (noise, latency, local views, loss,
+wheels, combined), run as ``patternrl eval --conditions`` runs it: every robot decides on
+its own view (:class:`runtime.decision.local.LocalDecisions`), with its own assignment and
+plan, the safety filter's margin widened for what it knows of its sensing, and the
+world's ground truth judging. Per case and brain (rules alone, rules + estimator, the
+shipped general brain), pooled over the shapes and episodes:
+
+* ``success`` -- formed with no collision and held (>= 90 % of the next 20 steps formed), %;
+* ``formed`` -- formed at least once (first passage), %;
+* ``held`` -- of the formed, the share that held, %;
+* ``coll/ep`` -- colliding pairs per episode, the hold window included;
+* ``steps`` -- steps to the first passage over the lower bound (mean over formed).
+
+Episode e of shape s is env e of a world seeded ``--seed + index(s)``: every brain sees
+the same starts and the same sensing noise.
+
+    .venv/bin/python benchmarks/conditions.py [--robots 10] [--episodes 20]
+        [--cases perfect,noise5,...] [--brains rule:frame-balanced,...] [--json]
+
+``--quick``: 4 episodes, circle and heart only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from runtime.brain.brain import load_brain  # noqa: E402 -- path set-up
+from runtime.conditions import parse_conditions  # noqa: E402
+from trainer.evaluate import evaluate_brain  # noqa: E402
+
+CASES: dict[str, str] = {
+    "perfect": "perfect",
+    "noise5": "noise_m=0.05",
+    "noise10": "noise_m=0.1",
+    "nearest6": "k_nearest=6",
+    "range2m": "range_m=2",
+    "late1": "latency_steps=1",
+    "late2": "latency_steps=2",
+    "late3": "latency_steps=3",
+    "loss30": "loss=0.3",
+    "wheels": "gain_noise=0.1,act_noise_mps=0.02",
+    "diff": "kinematics=diff,turn_rate_rps=2",
+    "combined": "realistic",
+}
+SHAPES = ("circle", "cross", "heart", "triangle", "random")
+BRAINS = ("rule:assign", "rule:frame", "rule:frame-balanced", "rule:frame-balanced+est",
+          "exports/general.onnx+est")
+
+
+def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
+             shapes: tuple[str, ...]) -> dict[str, Any]:
+    estimator = brain_name.endswith("+est")
+    path = brain_name.removesuffix("+est")
+    brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
+    cond = parse_conditions(CASES.get(case, case))
+    tot: dict[str, float] = {"episodes": 0, "ok": 0, "formed": 0, "held": 0, "coll": 0,
+                             "steps": 0.0, "wall": 0.0}
+    for k, shape in enumerate(shapes):
+        r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
+                           estimator=estimator, progress=False)
+        st = r.episode_stats
+        formed = [f > 0 for f in st["formed"]]
+        held = [h >= 0.9 for h in st["held"]]
+        tot["episodes"] += episodes
+        tot["ok"] += r.success_rate * episodes
+        tot["formed"] += sum(formed)
+        tot["held"] += sum(f and h for f, h in zip(formed, held, strict=True))
+        tot["coll"] += r.collisions
+        tot["steps"] += sum(s / lb for s, lb, f in zip(st["steps"], st["lower_bound_steps"],
+                                                      formed, strict=True) if f)
+        tot["wall"] += r.wall_s
+    e, f = tot["episodes"], tot["formed"]
+    return {
+        "brain": brain_name, "case": case, "conditions": cond.name(), "robots": n,
+        "episodes": int(e),
+        "success": tot["ok"] / e, "formed": f / e,
+        "held": tot["held"] / f if f else math.nan,
+        "collisions_per_episode": tot["coll"] / e,
+        "steps_ratio": tot["steps"] / f if f else math.nan,
+        "wall_s": tot["wall"],
+    }
+
+
+def _cell(r: dict[str, Any]) -> str:
+    def pct(x: float) -> str:
+        return "-" if math.isnan(x) else f"{100 * x:.0f}"
+
+    steps = "-" if math.isnan(r["steps_ratio"]) else f"{r['steps_ratio']:.2f}"
+    return (f"{pct(r['success'])} / {pct(r['formed'])} / {pct(r['held'])} / "
+            f"{r['collisions_per_episode']:.2f} / {steps}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--robots", type=int, default=10, help="team size (default 10)")
+    p.add_argument("--episodes", type=int, default=20, help="episodes per shape (default 20)")
+    p.add_argument("--seed", type=int, default=3_000_000, help="world seed (default 3000000)")
+    p.add_argument("--cases", default=",".join(CASES),
+                   help=f"comma-separated case names or condition specs (default all: "
+                   f"{', '.join(CASES)})")
+    p.add_argument("--brains", default=",".join(BRAINS),
+                   help="comma-separated brains; '+est' adds the estimator")
+    p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
+    p.add_argument("--quick", action="store_true", help="4 episodes, circle and heart")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    args = p.parse_args(argv)
+    episodes = 4 if args.quick else args.episodes
+    shapes = ("circle", "heart") if args.quick else tuple(args.shapes.split(","))
+    brains = args.brains.split(",")
+    cases = args.cases.split(",")
+    t0 = time.perf_counter()
+    rows = []
+    for case in cases:
+        for b in brains:
+            rows.append(run_case(b, case, args.robots, episodes, args.seed, shapes))
+            if not args.json:
+                print(f"  {case:<10} {b:<28} {_cell(rows[-1])}", file=sys.stderr, flush=True)
+    if args.json:
+        print(json.dumps({"robots": args.robots, "episodes_per_shape": episodes,
+                          "shapes": shapes, "rows": rows,
+                          "wall_s": time.perf_counter() - t0},
+                         default=lambda x: None))
+        return 0
+    print(f"\nn = {args.robots}, {episodes} episodes x {len(shapes)} shapes "
+          f"({', '.join(shapes)}); cell: success % / formed % / held % of formed / "
+          f"collisions per episode / steps over the lower bound")
+    w = max(len(b) for b in brains)
+    print(f"| case | {' | '.join(f'{b:<{w}}' for b in brains)} |")
+    print("|---" * (len(brains) + 1) + "|")
+    for case in cases:
+        cells = [_cell(r) for r in rows if r["case"] == case]
+        print(f"| {case} | {' | '.join(cells)} |")
+    print(f"\nwall {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

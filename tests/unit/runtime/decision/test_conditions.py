@@ -1,0 +1,154 @@
+"""Conditions: presets, overrides, one-line errors; the sensor, the tracker and the wheels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from runtime.conditions import PERFECT, PRESETS, Conditions, parse_conditions
+from runtime.decision.estimator import PeerTracker, steady_sigma
+from runtime.decision.kinematics import Wheels
+from runtime.decision.safety import OrcaParams, uncertainty_margin, uncertainty_params
+from runtime.decision.sensing import Sensor
+from runtime.errors import InputError
+
+
+def test_presets_and_overrides_round_trip() -> None:
+    c = parse_conditions("realistic,latency_steps=2,kinematics=diff")
+    assert c.latency_steps == 2 and c.kinematics == "diff" and c.noise_m == 0.05
+    assert Conditions.from_dict(c.to_dict()) == c
+    assert parse_conditions(c.name()) == c
+    assert parse_conditions("realistic").name() == "realistic"
+    assert parse_conditions(None) is PERFECT and PERFECT.perfect
+    assert parse_conditions("range_m=inf") == PERFECT
+    assert not PRESETS["harsh"].acting_perfect and not PRESETS["harsh"].sensing_perfect
+
+
+@pytest.mark.parametrize("spec", ["nonsense", "noise_m=-1", "noise_m=abc", "latency_steps=1.5",
+                                  "loss=1", "kinematics=tank", "realistic,foo=1", "k_nearest=-2",
+                                  "latency_steps=999", "range_m=0"])
+def test_bad_specs_are_one_line_input_errors(spec: str) -> None:
+    with pytest.raises(InputError) as e:
+        parse_conditions(spec)
+    assert "\n" not in str(e.value) and str(e.value).startswith("conditions:")
+
+
+def _team(n: int, B: int) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return np.repeat(rng.uniform(0, 5, (1, n, 2)), B, axis=0)
+
+
+def test_perfect_sensor_sees_the_truth() -> None:
+    P = _team(6, 6)
+    view, age = Sensor(PERFECT, np.arange(6), list(range(6))).sense(P)
+    assert np.array_equal(view, P) and not age.any()
+
+
+def test_latency_shows_peers_late_and_the_own_pose_fresh() -> None:
+    n = 4
+    s = Sensor(Conditions(latency_steps=2), np.arange(n), list(range(n)))
+    frames = [_team(n, n) + k for k in range(4)]
+    for P in frames:
+        view, age = s.sense(P)
+    for b in range(n):
+        for j in range(n):
+            want = frames[3][b, j] if j == b else frames[1][b, j]
+            assert np.array_equal(view[b, j], want)
+            assert age[b, j] == (0 if j == b else 2)
+
+
+def test_k_nearest_and_range_keep_unseen_peers_where_last_seen() -> None:
+    n = 8
+    P = np.zeros((1, n, 2))
+    P[0, :, 0] = np.arange(n)  # a row, 1 m apart; observer 0 at x = 0
+    s = Sensor(Conditions(k_nearest=2), np.array([0]), [1])
+    s.sense(P)  # the roll call: everyone seen
+    moved = P + 0.5
+    view, age = s.sense(moved)
+    assert np.allclose(view[0, 1:3], moved[0, 1:3])  # the 2 nearest follow
+    assert np.allclose(view[0, 3:], P[0, 3:]) and (age[0, 3:] == 1).all()  # the rest stay
+    s2 = Sensor(Conditions(range_m=2.5), np.array([0]), [1])
+    s2.sense(P)
+    view2, _ = s2.sense(moved)
+    assert np.allclose(view2[0, 1:3], moved[0, 1:3]) and np.allclose(view2[0, 3:], P[0, 3:])
+
+
+def test_noise_and_loss_have_their_stated_size_and_are_seeded() -> None:
+    n, B = 10, 50
+    c = Conditions(noise_m=0.05, loss=0.3)
+    P = _team(n, B)
+    s = Sensor(c, np.zeros(B, dtype=np.int64), list(range(B)))
+    s.sense(P)
+    errs, lost = [], []
+    for _ in range(20):
+        view, age = s.sense(P)
+        fresh = age[:, 1:] == 0
+        errs.append((view - P)[:, 1:][fresh])
+        lost.append(1 - fresh.mean())
+    e = np.concatenate(errs)
+    assert abs(e.std() - 0.05) < 0.005
+    assert abs(float(np.mean(lost)) - 0.3) < 0.03
+    assert np.array_equal(_second_view(c, P, list(range(B))), _second_view(c, P, list(range(B))))
+    assert not np.array_equal(_second_view(c, P, list(range(B))),
+                              _second_view(c, P, list(range(1, B + 1))))
+
+
+def _second_view(c: Conditions, P: np.ndarray, seeds: list[int]) -> np.ndarray:
+    s = Sensor(c, np.zeros(len(seeds), dtype=np.int64), seeds)
+    s.sense(P)
+    return s.sense(P)[0]
+
+
+def test_tracker_beats_the_raw_view_on_noise_and_latency() -> None:
+    """A peer moving at constant velocity, seen 2 steps late with 5 cm noise: the tracker's
+    estimate of where it is now is closer than the raw view."""
+    rng = np.random.default_rng(4)
+    tr = PeerTracker(np.array([0]), noise_m=0.05, latency_steps=2)
+    v = np.array([0.5, -0.3])
+    raw_err, est_err = [], []
+    for t in range(200):
+        true_now = np.array([[0.0, 0.0], v * 0.1 * t])
+        seen = np.array([[0.0, 0.0], v * 0.1 * (t - 2) + rng.normal(0, 0.05, 2)])
+        x, vel, sigma = tr.update(seen[None], np.array([[0, 2]]))
+        if t > 50:
+            raw_err.append(np.linalg.norm(seen[1] - true_now[1]))
+            est_err.append(np.linalg.norm(x[0, 1] - true_now[1]))
+    assert np.mean(est_err) < 0.5 * np.mean(raw_err)
+    assert sigma[0, 0] == 0.0 and sigma[0, 1] == pytest.approx(steady_sigma(0.05))
+    assert np.allclose(vel[0, 1], v, atol=0.15)
+
+
+def test_tracker_is_the_view_when_the_view_is_exact() -> None:
+    tr = PeerTracker(np.arange(3))
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        P = np.repeat(rng.uniform(0, 3, (1, 3, 2)), 3, axis=0)
+        x, _, _ = tr.update(P, np.zeros((3, 3), dtype=np.int64))
+        assert np.allclose(x, P, atol=1e-12)
+
+
+def test_wheels_gain_noise_and_diff_drive() -> None:
+    c = Conditions(gain_noise=0.1, act_noise_mps=0.0, kinematics="diff", turn_rate_rps=2.0)
+    w = Wheels(c, 2, 50, list(np.random.SeedSequence(3).spawn(2)), 0.1)
+    assert np.all(np.abs(w.gain - 1) <= 0.1) and w.gain.std() > 0.02
+    cmd = np.zeros((2, 50, 2))
+    cmd[..., 0] = 0.5
+    u = w.apply(cmd)
+    heading = w.heading
+    assert np.allclose(u[..., 0] * np.sin(heading) - u[..., 1] * np.cos(heading), 0, atol=1e-12)
+    assert np.all(np.hypot(u[..., 0], u[..., 1]) <= 0.5 * w.gain + 1e-12)
+    still = Wheels(Conditions(act_noise_mps=0.05), 1, 5, [np.random.SeedSequence(1)], 0.1)
+    assert not still.apply(np.zeros((1, 5, 2))).any()  # a robot at rest stays at rest
+
+
+def test_margin_grows_with_uncertainty_and_vanishes_when_perfect() -> None:
+    assert uncertainty_margin(PERFECT) == 0.0
+    assert uncertainty_params(OrcaParams(), PERFECT) == OrcaParams()
+    m_raw = uncertainty_margin(PRESETS["realistic"])
+    m_est = uncertainty_margin(PRESETS["realistic"], estimator=True)
+    assert 0 < m_est < m_raw
+    wide, narrow = Conditions(noise_m=0.1), Conditions(noise_m=0.05)
+    assert uncertainty_margin(wide) > uncertainty_margin(narrow)
+    assert math.isfinite(uncertainty_margin(PRESETS["harsh"]))
