@@ -182,6 +182,7 @@ class Controller:
         pattern: Array,
         step: int | None = None,
         velocities: Array | None = None,
+        filter_positions: Array | None = None,
     ) -> Decision:
         """Decide robot ``robot_index``'s velocity for this step.
 
@@ -193,7 +194,10 @@ class Controller:
         history (realtime mode deciding faster than the world steps).
         ``velocities``: (n, 2) m/s, the team's velocities as an estimator has them
         (:class:`runtime.decision.estimator.PeerTracker`); None: the difference of the
-        last two frames / dt.
+        last two frames / dt. ``filter_positions``: (n, 2) where the safety filter takes
+        the team to be (an estimator's positions carried forward to now), when the brain
+        plans from others (the positions as sensed, so that a team does not chase its
+        own extrapolation); None: ``positions``.
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.
         """
@@ -223,6 +227,8 @@ class Controller:
             return self._hold(t0, bvx, bvy, ERR_NONFINITE, slot)
         # 5. command: clamp and the safety filter (no neighbour considered without one)
         horizon = landing(self.safety or OrcaParams(), steps_left, self.world)
+        if filter_positions is not None:
+            P = np.asarray(filter_positions, dtype=np.float64)[None]
         vx, vy, changed, change = self._filter.robot(0, i, P, V, bvx, bvy, horizon)
         us = (time.perf_counter_ns() - t0) / 1000.0
         return Decision((vx, vy), (bvx, bvy), changed and self.safety is not None, change, us,

@@ -17,8 +17,10 @@ Per observer b and peer j, each step:
 
 ``alpha`` and ``beta`` trade smoothing for lag. The defaults (0.4, 0.1) were chosen on
 ``benchmarks/conditions.py``'s cases (5 cm noise, 1 step late, 10 % lost) for the
-rules. Without noise the gains are 1 and 1: the estimate is the view extrapolated over
-its age by the frame difference (with fresh views, the view itself).
+rules (on Kalata's critically damped curve, ``beta = 2 (2 - alpha) - 4 sqrt(1 - alpha)``,
+so the filter settles without ringing). Without noise nothing is smoothed: a peer's
+velocity is its motion between its last two updates, and its position the last update
+carried forward over its age (with fresh views, the view itself).
 
 ``sigma_m`` (B, n) is the filter's own figure of its position error: the noise the
 steady-state filter leaves, ``noise sqrt(alpha / (2 - alpha))``, plus half a step at
@@ -39,6 +41,10 @@ __all__ = ["PeerTracker", "steady_sigma"]
 
 ALPHA = 0.4
 BETA = 0.1
+ALPHA_MIN = 0.05
+"""A peer that keeps where it was is averaged over up to 1 / ALPHA_MIN updates."""
+GATE_SIGMAS = 3.0
+"""An innovation beyond this many sigmas of the noise means the peer moved: back to ALPHA."""
 
 
 def steady_sigma(noise_m: float, alpha: float = ALPHA) -> float:
@@ -57,12 +63,13 @@ class PeerTracker:
                  alpha: float = ALPHA, beta: float = BETA,
                  world: WorldConfig = DEFAULT_WORLD) -> None:
         self.observer = np.asarray(observer, dtype=np.int64)
-        if noise_m == 0.0:  # exact views: the view itself, its frame difference as velocity
-            alpha, beta = 1.0, 1.0
+        self.exact = noise_m == 0.0  # exact views: no smoothing (see the module docstring)
         self.alpha, self.beta = float(alpha), float(beta)
         self.world = world
         self.latency_steps = int(latency_steps)
+        self.noise_m = float(noise_m)
         self._sigma0 = steady_sigma(noise_m, alpha)
+        self._calm: IntArray = np.zeros((0, 0), dtype=np.int64)
         self.reset()
 
     def reset(self) -> None:
@@ -70,10 +77,14 @@ class PeerTracker:
         self._v: Array | None = None
         self._age: IntArray | None = None
         self._own: Array | None = None
+        self._z: Array | None = None
+        self.sensed: Array = np.zeros((0, 0, 2))
+        self._gap: IntArray = np.zeros((0, 0), dtype=np.int64)
 
     def update(self, view: Array, age: IntArray) -> tuple[Array, Array, Array]:
         """(positions now (B, n, 2) m, velocities (B, n, 2) m/s, sigma_m (B, n)) from this
-        step's ``view`` (B, n, 2) and its ``age`` (B, n) steps."""
+        step's ``view`` (B, n, 2) and its ``age`` (B, n) steps. ``sensed`` then holds the
+        smoothed positions as of when they were sensed (not carried forward)."""
         z = np.asarray(view, dtype=np.float64)
         a = np.asarray(age, dtype=np.int64)
         B = z.shape[0]
@@ -86,14 +97,26 @@ class PeerTracker:
             self._v = np.zeros_like(z)
             self._age = a.copy()
             self._own = own.copy()
+            self._z = z.copy()
+            self._gap = np.zeros(a.shape, dtype=np.int64)
+            self._calm = np.zeros(a.shape, dtype=np.int64)
         else:
             x, v = self._x, self._v
             x += v * dt  # 1. predict
             new = a <= self._age  # 2. update where a position arrived
-            r = z - (x - (a * dt)[..., None] * v)
-            r[~new] = 0.0
-            x += self.alpha * r
-            v += (self.beta / dt) * r
+            self._gap += 1
+            if self.exact:  # the view's own motion since its last update, carried forward
+                assert self._z is not None
+                vz = (z - self._z) / (self._gap * dt)[..., None]
+                v[new] = vz[new]
+                x[new] = z[new] + ((a * dt)[..., None] * v)[new]
+            else:  # alpha-beta, averaging longer while a peer keeps to where it was
+                r = z - (x - (a * dt)[..., None] * v)
+                r[~new] = 0.0
+                x += self.alpha * r
+                v += (self.beta / dt) * r
+            self._gap[new] = 0
+            self._z = z.copy()
             speed = np.hypot(v[..., 0], v[..., 1])
             over = speed > vmax
             if over.any():
@@ -103,6 +126,7 @@ class PeerTracker:
             v[rows, self.observer] = (own - self._own) / dt
             x[rows, self.observer] = own
             self._own = own.copy()
+        self.sensed = self._x - (a * dt)[..., None] * self._v
         stale = np.maximum(a - self.latency_steps, 0)
         sigma = self._sigma0 + 0.5 * vmax * dt * stale
         sigma[rows, self.observer] = 0.0

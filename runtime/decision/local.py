@@ -62,9 +62,10 @@ class LocalDecisions:
         E, n = self.n_envs, self.n_robots
         P = np.asarray(truth, dtype=np.float64)
         view, age = self.sensor.sense(np.repeat(P, n, axis=0))
-        vel_est = None
-        if self.tracker is not None:
-            view, vel_est, _ = self.tracker.update(view, age)
+        vel_est = now = None
+        if self.tracker is not None:  # plan from the smoothed views, filter from now
+            now, vel_est, _ = self.tracker.update(view, age)
+            view = self.tracker.sensed
         self.last_view = view.reshape(E, n, n, 2)
         out = np.zeros((E, n, 2))
         slots = np.full((E, n), -1, dtype=np.int64)
@@ -75,8 +76,9 @@ class LocalDecisions:
             C = pattern[e]
             for i in range(n):
                 b = e * n + i
-                d = self.controllers[b].decide(i, view[b], C, self.step,
-                                               None if vel_est is None else vel_est[b])
+                d = self.controllers[b].decide(
+                    i, view[b], C, self.step, None if vel_est is None else vel_est[b],
+                    None if now is None else now[b])
                 out[e, i] = d.velocity
                 slots[e, i] = d.slot
                 changed[e, i] = d.safety_changed
