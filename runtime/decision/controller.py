@@ -30,6 +30,7 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame
 from runtime.decision.safety import OrcaParams, landing, make_filter
+from runtime.decision.settle import Lander, Settle
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -49,9 +50,11 @@ class Controller:
         brain: Brain,
         world: WorldConfig = DEFAULT_WORLD,
         safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
+        settle: Settle | None = None,
     ) -> None:
         self.world = world
         self.safety = safety
+        self._lander = Lander(settle, world.dt_s) if settle is not None else None
         self._brain = brain
         self._filter = make_filter(safety, world)
         self._reach = world.v_max_mps * world.dt_s
@@ -83,6 +86,8 @@ class Controller:
         self._assignment: TeamAssignment | None = None  # its slots and potentials, kept
         self._vel: Array = np.zeros((1, 0, 2))  # the team's velocity estimates (m/s)
         self._plan = PlanFrame()
+        if self._lander is not None:
+            self._lander.reset()
 
     @property
     def previous_slots(self) -> IntArray | None:
@@ -225,11 +230,12 @@ class Controller:
             return self._hold(t0, 0.0, 0.0, ERR_BRAIN, slot)
         if not (math.isfinite(bvx) and math.isfinite(bvy)):
             return self._hold(t0, bvx, bvy, ERR_NONFINITE, slot)
+        px, py = (bvx, bvy) if self._lander is None else self._lander.apply(bvx, bvy)
         # 5. command: clamp and the safety filter (no neighbour considered without one)
         horizon = landing(self.safety or OrcaParams(), steps_left, self.world)
         if filter_positions is not None:
             P = np.asarray(filter_positions, dtype=np.float64)[None]
-        vx, vy, changed, change = self._filter.robot(0, i, P, V, bvx, bvy, horizon)
+        vx, vy, changed, change = self._filter.robot(0, i, P, V, px, py, horizon)
         us = (time.perf_counter_ns() - t0) / 1000.0
         return Decision((vx, vy), (bvx, bvy), changed and self.safety is not None, change, us,
                         "", slot)

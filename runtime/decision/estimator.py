@@ -41,10 +41,6 @@ __all__ = ["PeerTracker", "steady_sigma"]
 
 ALPHA = 0.4
 BETA = 0.1
-ALPHA_MIN = 0.05
-"""A peer that keeps where it was is averaged over up to 1 / ALPHA_MIN updates."""
-GATE_SIGMAS = 3.0
-"""An innovation beyond this many sigmas of the noise means the peer moved: back to ALPHA."""
 
 
 def steady_sigma(noise_m: float, alpha: float = ALPHA) -> float:
@@ -69,7 +65,7 @@ class PeerTracker:
         self.latency_steps = int(latency_steps)
         self.noise_m = float(noise_m)
         self._sigma0 = steady_sigma(noise_m, alpha)
-        self._calm: IntArray = np.zeros((0, 0), dtype=np.int64)
+
         self.reset()
 
     def reset(self) -> None:
@@ -99,7 +95,6 @@ class PeerTracker:
             self._own = own.copy()
             self._z = z.copy()
             self._gap = np.zeros(a.shape, dtype=np.int64)
-            self._calm = np.zeros(a.shape, dtype=np.int64)
         else:
             x, v = self._x, self._v
             x += v * dt  # 1. predict
@@ -110,7 +105,7 @@ class PeerTracker:
                 vz = (z - self._z) / (self._gap * dt)[..., None]
                 v[new] = vz[new]
                 x[new] = z[new] + ((a * dt)[..., None] * v)[new]
-            else:  # alpha-beta, averaging longer while a peer keeps to where it was
+            else:  # alpha-beta
                 r = z - (x - (a * dt)[..., None] * v)
                 r[~new] = 0.0
                 x += self.alpha * r

@@ -21,10 +21,38 @@ from runtime.decision.controller import Controller
 from runtime.decision.estimator import PeerTracker
 from runtime.decision.safety import OrcaParams, uncertainty_params
 from runtime.decision.sensing import Sensor
+from runtime.decision.settle import settle_for
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["LocalDecisions"]
+__all__ = ["LocalDecisions", "Perception"]
+
+
+class Perception:
+    """What B robots perceive of their teams: the :class:`Sensor` under ``conditions``,
+    then, with ``estimator``, each robot's :class:`PeerTracker`.
+
+    :meth:`perceive` returns, per robot, the team as its brain plans from it (the views, or
+    the tracker's positions as sensed), the team as its safety filter takes it now (None
+    without the tracker: the same views) and the velocities (None without the tracker:
+    the controller's frame differences)."""
+
+    def __init__(self, conditions: Conditions, observer: IntArray,
+                 seeds: list[np.random.SeedSequence], estimator: bool = False,
+                 world: WorldConfig = DEFAULT_WORLD) -> None:
+        self.conditions = conditions
+        self.sensor = Sensor(conditions, observer, seeds)
+        self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
+                                   world=world) if estimator else None
+
+    def perceive(self, truth: Array) -> tuple[Array, Array | None, Array | None]:
+        """(plan view (B, n, 2), filter view (B, n, 2) or None, velocities (B, n, 2) or None)
+        from each robot's team as it truly is now, ``truth`` (B, n, 2)."""
+        view, age = self.sensor.sense(truth)
+        if self.tracker is None:
+            return view, None, None
+        now, vel, _ = self.tracker.update(view, age)
+        return self.tracker.sensed, now, vel  # plan from the smoothed views, filter from now
 
 
 class LocalDecisions:
@@ -43,12 +71,12 @@ class LocalDecisions:
         self.conditions = conditions
         observer = np.tile(np.arange(n), E)
         seeds = [np.random.SeedSequence((seed, e, i)) for e in range(E) for i in range(n)]
-        self.sensor = Sensor(conditions, observer, seeds)
-        self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
-                                   world=world) if estimator else None
+        self.perception = Perception(conditions, observer, seeds, estimator, world)
         self.safety = None if safety is None else uncertainty_params(safety, conditions,
                                                                      estimator, world)
-        self.controllers = [Controller(brain, world, self.safety) for _ in range(E * n)]
+        settle = settle_for(conditions, estimator, world)
+        self.controllers = [Controller(brain, world, self.safety, settle)
+                            for _ in range(E * n)]
         self.step = 0
         self.last_view: Array | None = None
         """The last step's perceived team per robot, (E, n, n, 2) m (estimates when on)."""
@@ -61,11 +89,7 @@ class LocalDecisions:
         sense, so their views stay current)."""
         E, n = self.n_envs, self.n_robots
         P = np.asarray(truth, dtype=np.float64)
-        view, age = self.sensor.sense(np.repeat(P, n, axis=0))
-        vel_est = now = None
-        if self.tracker is not None:  # plan from the smoothed views, filter from now
-            now, vel_est, _ = self.tracker.update(view, age)
-            view = self.tracker.sensed
+        view, now, vel_est = self.perception.perceive(np.repeat(P, n, axis=0))
         self.last_view = view.reshape(E, n, n, 2)
         out = np.zeros((E, n, 2))
         slots = np.full((E, n), -1, dtype=np.int64)

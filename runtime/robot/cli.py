@@ -7,8 +7,9 @@ import math
 from dataclasses import dataclass
 
 from runtime.brain.signing import TrustedKeys, default_trust
+from runtime.conditions import PERFECT, Conditions, parse_conditions
 from runtime.decision.patterns import PatternError, make_pattern
-from runtime.decision.safety import OrcaParams
+from runtime.decision.safety import OrcaParams, uncertainty_params
 from runtime.errors import InputError
 from runtime.net.session import add_zenoh_arguments
 from runtime.wire import keys
@@ -34,6 +35,13 @@ class RobotConfig:
     world_timeout_s: float = 30.0
     trust: TrustedKeys | None = None
     """Keys a brain must be signed by (None: unchecked, for embedding and tests)."""
+    conditions: Conditions = PERFECT
+    """Sensing the robot simulates on the world's poses (noise, range, latency, loss), for a
+    simulated swarm; a real robot's sensing is real (leave it perfect there)."""
+    sensing_seed: int = 0
+    """Seeds the simulated sensing (with the robot id)."""
+    estimator: bool = False
+    """Track peers (``runtime.decision.estimator``) and decide on the estimates."""
     debug_delay_ms: float = 0.0
     """Testing only: each command goes out after a random extra delay in [0, this] ms
     (seeded by the robot id), to check that late commands never make the swarm unsafe."""
@@ -100,6 +108,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--status-period-s", type=float, default=1.0, help=argparse.SUPPRESS)
     parser.add_argument("--debug-delay-ms", type=float, default=0.0, help=argparse.SUPPRESS)
+    cg = parser.add_argument_group("sensing")
+    cg.add_argument(
+        "--conditions",
+        default="perfect",
+        help="in a simulated swarm, sense the world's poses under these conditions: a preset "
+        "(perfect, realistic, harsh) with field=value overrides (runtime/conditions.py); the "
+        "safety margin and the landing follow the noise and latency it knows (default perfect)",
+    )
+    cg.add_argument("--sensing-seed", type=int, default=0,
+                    help="seed of the simulated sensing, with the robot id (default 0)")
+    cg.add_argument("--estimator", action="store_true",
+                    help="track each peer (alpha-beta filter, latency compensation) and decide "
+                    "on the estimates")
     g = parser.add_argument_group("safety filter (ORCA)")
     d = OrcaParams()
     g.add_argument("--safety", choices=("orca", "off"), default="orca", help="(default orca)")
@@ -180,6 +201,7 @@ def config_from_args(
             raise InputError(f"{name} must be >= 0, got {v}")
     if args.orca_max_neighbours < 1:
         raise InputError("--orca-max-neighbours must be >= 1")
+    conditions = parse_conditions(args.conditions)
     if args.pattern is not None:
         try:
             make_pattern(args.pattern, 4, world)  # readable and well-formed
@@ -213,5 +235,10 @@ def config_from_args(
         world_timeout_s=args.world_timeout_s,
         trust=default_trust(args.trust),
         debug_delay_ms=args.debug_delay_ms,
+        conditions=conditions,
+        estimator=args.estimator,
+        sensing_seed=args.sensing_seed,
     )
+    if safety is not None:
+        safety = uncertainty_params(safety, conditions, args.estimator, world)
     return cfg, safety

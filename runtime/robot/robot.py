@@ -77,14 +77,17 @@ import time
 from types import FrameType
 from typing import Final
 
+import numpy as np
 import zenoh
 
 from runtime.brain.brain import Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
 from runtime.decision.controller import Controller
+from runtime.decision.local import Perception
 from runtime.decision.patterns import PatternError
 from runtime.decision.pipeline import Decision
 from runtime.decision.safety import OrcaParams
+from runtime.decision.settle import settle_for
 from runtime.decision.team_pattern import TeamPattern
 from runtime.errors import InputError
 from runtime.log import Log, one_line
@@ -93,6 +96,7 @@ from runtime.robot.cli import RobotConfig, add_arguments, config_from_args
 from runtime.robot.inbox import PoseInbox, Step
 from runtime.robot.status import RobotStats
 from runtime.robot.swap_worker import SwapReply, SwapWorker
+from runtime.types import Array
 from runtime.wire import keys
 from runtime.wire.messages import (
     Command,
@@ -148,7 +152,10 @@ class Robot:
         self.session = session
         self.id = cfg.robot_id
         self.log = log if log is not None else Log(f"robot {cfg.robot_id}", False)
-        self.controller = Controller(brain, world, safety)
+        self.controller = Controller(brain, world, safety,
+                                     settle_for(cfg.conditions, cfg.estimator, world))
+        self._perception: Perception | None = None  # for the team of the last decision
+        self._perceived: tuple[int, tuple[Array, Array | None, Array | None]] | None = None
         self.stats = RobotStats()
         self.inbox = PoseInbox(
             self.id,
@@ -343,14 +350,18 @@ class Robot:
                 self.log("info", "team", f"{len(self._team_ids)} -> {n} robots")
             self.controller.reset()
             self._team_ids = step.ids
+            self._perception = self._perceive_team(step.ids.index(self.id))
         pattern, why = self.pattern.for_team(n)
         if pattern is None:
             d = _still(why)
         else:
             try:
-                d = self.controller.decide(
-                    step.ids.index(self.id), step.positions, pattern, step.step
-                )
+                i = step.ids.index(self.id)
+                if self._perception is None:
+                    d = self.controller.decide(i, step.positions, pattern, step.step)
+                else:
+                    plan, now, vel = self._perceive(step)
+                    d = self.controller.decide(i, plan, pattern, step.step, vel, now)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -359,6 +370,25 @@ class Robot:
                 self.log("warning", "hold", d.error, step=step.step)
             self.stats.error(d.error, count=pattern is not None)  # no pattern yet: no error
         return d
+
+    def _perceive_team(self, index: int) -> Perception | None:
+        """A new team's sensing (None when the robot sees the poses as they are)."""
+        c = self.cfg.conditions
+        if c.sensing_perfect and not self.cfg.estimator:
+            return None
+        seed = np.random.SeedSequence((self.cfg.sensing_seed, self.id))
+        self._perceived = None
+        return Perception(c, np.array([index]), [seed], self.cfg.estimator, self.world)
+
+    def _perceive(self, step: Step) -> tuple[Array, Array | None, Array | None]:
+        """This step's team as the robot perceives it: sensed once per world step (a repeated
+        step in realtime reuses it, so latency counts world steps)."""
+        assert self._perception is not None
+        if self._perceived is None or self._perceived[0] != step.step:
+            plan, now, vel = self._perception.perceive(np.asarray(step.positions)[None])
+            self._perceived = (step.step, (plan[0], None if now is None else now[0],
+                                           None if vel is None else vel[0]))
+        return self._perceived[1]
 
     def _send(self, step: int, d: Decision) -> None:
         self._publish_cmd(step, d)

@@ -168,6 +168,11 @@ class Robots:
             cmd += ["--insecure"] if keys_dir is None else ["--tls-dir", str(keys_dir)]
             for key in getattr(args, "trust", []):  # the run's operator key
                 cmd += ["--trust", key]
+            cond = getattr(args, "conditions", "perfect")
+            if cond != "perfect":  # each robot senses under them, seeded apart
+                cmd += ["--conditions", cond, "--sensing-seed", str(args.seed)]
+            if getattr(args, "estimator", False):
+                cmd += ["--estimator"]
             if args.mode == "realtime":
                 cmd += ["--rate-hz", str(args.rate_hz)]
             else:  # a robot waits for every pose of a step about as long as the world waits

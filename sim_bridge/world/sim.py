@@ -33,6 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
+from runtime.conditions import parse_conditions
 from runtime.decision.patterns import PatternError, make_pattern
 from runtime.errors import InputError
 from runtime.net.session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
@@ -71,6 +72,13 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                    help="realtime step rate (default 1/dt = 10)")
     p.add_argument("--brain-kind", choices=("general", "paper"), default="general",
                    help="with a brains directory, which observation to prefer (default general)")
+    p.add_argument("--conditions", default="perfect",
+                   help="the wheels' conditions the world applies (gain_noise, act_noise_mps, "
+                        "kinematics=diff): a preset (perfect, realistic, harsh) with field=value "
+                        "overrides; launch hands the same to every robot, which senses under its "
+                        "sensing fields (default perfect)")
+    p.add_argument("--estimator", action="store_true",
+                   help="launch: every robot tracks its peers and decides on the estimates")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -108,10 +116,12 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
+    conditions = parse_conditions(getattr(args, "conditions", "perfect"))
     return SimConfig(
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
         step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
+        conditions=conditions,
     )
 
 

@@ -51,7 +51,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import zenoh
 
+from runtime.conditions import PERFECT, Conditions
 from runtime.decision.formation import lower_bounds
+from runtime.decision.kinematics import Wheels
 from runtime.decision.patterns import make_pattern, pattern_label
 from runtime.types import Array
 from runtime.wire.messages import PatternMsg, encode_pattern
@@ -88,6 +90,9 @@ class SimConfig:
     swap_timeout_s: float = 15.0
     pattern_republish_s: float = 1.0
     world: WorldConfig = DEFAULT_WORLD
+    conditions: Conditions = PERFECT
+    """The wheels' part is the world's (gain, actuation noise, differential drive); the
+    sensing part is each robot's."""
 
 
 @dataclass
@@ -143,6 +148,8 @@ class SimWorld:
         self.stepping_cpu_s = 0.0
         self._tick: float | None = None  # realtime: when the current step's period began
         self.overruns = 0
+        self._wheel_ids: list[int] = []
+        self._wheel_model: Wheels | None = None
         """realtime: steps whose tick had passed before their poses went out."""
         patterns_at_n = [make_pattern(p, cfg.robots, self.w) for p in cfg.patterns]
         self.arena_m = arena_for_patterns(patterns_at_n, self.w)
@@ -276,6 +283,18 @@ class SimWorld:
             self.link.put_pattern()
         return joined
 
+    def _wheels(self, ids: list[int], v: Array) -> Array:
+        """The velocities the robots move at for their commands ``v`` (n, 2), under the
+        conditions' wheels (a new team draws its wheels afresh, seeded by the world's seed)."""
+        c = self.cfg.conditions
+        if c.acting_perfect:
+            return v
+        if self._wheel_ids != ids or self._wheel_model is None:
+            seed = np.random.SeedSequence((self.cfg.seed, 2, len(ids), self.step))
+            self._wheel_model = Wheels(c, 1, len(ids), [seed], self.w.dt_s)
+            self._wheel_ids = list(ids)
+        return np.asarray(self._wheel_model.apply(np.asarray(v)[None])[0])
+
     def _step(self, ph: _Phase, first: bool) -> bool:
         """Poses out, commands in, physics, measures, record; False if stopped meanwhile."""
         ids = list(self.physics.ids)
@@ -286,7 +305,7 @@ class SimWorld:
                                        self._deadline_s(first), self.stop_event)
         if self.stop_event.is_set():
             return False
-        res = self.physics.step(v)
+        res = self.physics.step(self._wheels(ids, v))
         self.link.moved(ids, pos)
         self.step += 1
         ph.steps += 1

@@ -186,3 +186,27 @@ def test_the_widened_margin_keeps_a_noisy_crowd_apart() -> None:
         local.uncertainty_params = widen  # type: ignore[assignment]
     assert bare.collisions > 0
     assert safe.collisions == 0
+
+
+def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None:
+    from runtime.decision.settle import Lander, settle_for
+
+    assert settle_for(PRESETS["perfect"]) is None
+    assert settle_for(Conditions(latency_steps=2, loss=0.3)) is None
+    s = settle_for(Conditions(noise_m=0.05), estimator=True)
+    assert s is not None and 0 < s.radius_m <= 0.05
+    lander = Lander(s, 0.1)
+    assert lander.apply(1.0, 0.0) == (1.0, 0.0)  # a full step passes
+    vx, vy = lander.apply(0.2, 0.1)  # a 2.2 cm step is damped
+    assert (vx, vy) == pytest.approx((0.2 * s.gain, 0.1 * s.gain))
+
+
+def test_a_team_on_noisy_views_holds_with_the_tracker_and_the_landing() -> None:
+    """5 cm of noise: each robot on its own view, tracker on, forms and holds (ground truth)."""
+    from runtime.brain.brain import load_brain
+    from trainer.evaluate import evaluate_brain
+
+    r = evaluate_brain(load_brain("rule:frame-balanced"), "circle", 7, 3, seed=78,
+                       conditions=parse_conditions("noise_m=0.05"), estimator=True,
+                       progress=False)
+    assert r.collisions == 0 and r.formed_rate == 1.0 and r.held_rate >= 2 / 3
