@@ -84,6 +84,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", help="fine-tune from a brain (.onnx) or a checkpoint (.pt)")
     p.add_argument("--resume", help="continue an interrupted run from its .ckpt.pt")
     p.add_argument("--envs", type=int, help=f"worlds side by side (default {d.n_envs})")
+    p.add_argument("--conditions",
+                   help="the wheels to train on: a preset or spec of runtime.conditions with "
+                   "wheel fields only, e.g. 'gain_noise=0.1,act_noise_mps=0.02,kinematics=diff' "
+                   "(default perfect; recorded in the manifest)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
         "--sign-key",
@@ -183,6 +187,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "--eval-episodes": ("eval_episodes", args.eval_episodes),
         "--threads": ("threads", args.threads),
         "--lr-decay": ("lr_decay", True if args.lr_decay else None),
+        "--conditions": ("conditions", args.conditions),
     }
     for flag, (name, value) in options.items():
         if value is not None:

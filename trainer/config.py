@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal, get_type_hints
 
+from runtime.conditions import Conditions, parse_conditions
 from runtime.decision.observation import ObservationSpec
 from runtime.errors import InputError
 from trainer.world.reward import RewardConfig
@@ -68,6 +69,11 @@ class TrainConfig:
     """Train behind the robots' ORCA safety filter (runtime.decision.safety, its
     defaults): the worlds move each robot by the filtered command, as ``eval``, the world and
     the robots do, so a brain learns what the filter will make of its commands."""
+    conditions: str = "perfect"
+    """The wheels the training world runs (runtime.conditions: a preset or spec); recorded in the
+    brain's manifest. Training applies the wheels' fields (gain_noise, act_noise_mps, kinematics,
+    turn_rate_rps); a spec with imperfect sensing is refused (the training world builds one
+    view per team)."""
     front_end: str = "auto"
     """The paper brain's fixed front end before the normaliser (trainer.ppo.front_end), read from
     the paper observation alone: ``transport`` (the team matched to its pattern by optimal
@@ -163,6 +169,19 @@ class TrainConfig:
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")
+        try:
+            cond = parse_conditions(self.conditions)
+        except InputError as e:
+            raise ValueError(str(e).removeprefix("conditions: ")) from None
+        if not cond.sensing_perfect:
+            raise ValueError("training applies the wheels' fields only (gain_noise, "
+                             "act_noise_mps, kinematics, turn_rate_rps); evaluate sensing "
+                             "conditions with eval --conditions")
+
+    @property
+    def world_conditions(self) -> Conditions:
+        """The parsed :attr:`conditions`."""
+        return parse_conditions(self.conditions)
 
     @property
     def front(self) -> str:

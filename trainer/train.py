@@ -171,6 +171,7 @@ def evaluate_policy(
         world=world,
         reward=reward_for(cfg),
         seed=seed,
+        conditions=cfg.world_conditions,
     )
     obs = bw.observe()
     done = np.zeros(episodes, bool)
