@@ -48,6 +48,12 @@ def _clamp(vx: cython.double, vy: cython.double,
     b: cython.double = sqrt(vx * vx + vy * vy)
     sp: cython.double = a if a > b else b
     s: cython.double
+    if sp > 1e300:  # the squares overflow: scale first, the direction is what counts
+        vx = vx * 1e-300
+        vy = vy * 1e-300
+        a = hypot(vx, vy)
+        b = sqrt(vx * vx + vy * vy)
+        sp = a if a > b else b
     if sp > v_max:
         s = v_max / sp
         vx = vx * s

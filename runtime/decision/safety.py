@@ -77,6 +77,7 @@ Choices, all documented here:
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -247,6 +248,7 @@ def orca_filter(
     vel[0, 0] = np.asarray(own_vel, dtype=np.float64).reshape(2)
     vel[0, 1:] = np.asarray(nb_vel, dtype=np.float64).reshape(-1, 2)
     vx, vy, _, _ = make_filter(params, world).robot(0, 0, pos, vel, px, py, params.time_horizon_s)
-    change = math.hypot(vx - px, vy - py)  # from the preference as given, not as clamped
+    # from the preference as given, not as clamped (a finite figure even for the largest)
+    change = min(math.hypot(vx - px, vy - py), sys.float_info.max)
     return FilterResult(velocity=(vx, vy), changed=(not pref_ok) or change > CHANGE_TOL_MPS,
                         change_mps=change)

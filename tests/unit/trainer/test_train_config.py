@@ -60,7 +60,8 @@ def test_precedence_defaults_file_options_set(tmp_path) -> None:
 
 def test_every_field_can_be_set_both_ways() -> None:
     base = TrainConfig()
-    strings = {"algo": "ppo", "obs": "paper", "returns": "mc", "front_end": "none"}
+    strings = {"algo": "ppo", "obs": "paper", "returns": "mc", "front_end": "none",
+               "conditions": "kinematics=diff"}
     for f in dataclasses.fields(TrainConfig):
         if f.name == "reward":
             continue
