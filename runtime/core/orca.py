@@ -40,6 +40,10 @@ MAX_NEIGHBOURS = 64
 """The most neighbours the filter considers (``OrcaParams.max_neighbours``)."""
 
 
+MARGIN_ROOM_M = 1e-3
+"""Inside a pair's uncertainty margin, the margin shrinks to the distance less this (m)."""
+
+
 @cython.cfunc
 @cython.exceptval(check=False)
 def _clamp(vx: cython.double, vy: cython.double,
@@ -228,6 +232,7 @@ class OrcaFilter:
     max_neighbours: cython.Py_ssize_t
     range_sq: cython.double
     combined: cython.double
+    hard: cython.double
     dt: cython.double
     keep_right: cython.double
     v_max: cython.double
@@ -240,17 +245,24 @@ class OrcaFilter:
     _found: cython.double[::1]
 
     def __init__(self, max_neighbours: int, neighbour_dist_m: float, combined_radius_m: float,
-                 dt_s: float, keep_right_rad: float, v_max_mps: float) -> None:
+                 dt_s: float, keep_right_rad: float, v_max_mps: float,
+                 hard_radius_m: float = -1.0) -> None:
         """``max_neighbours`` at most :data:`MAX_NEIGHBOURS` nearest, closer than
         ``neighbour_dist_m`` (m); ``combined_radius_m`` the pair's radius with its margin
         (m); ``dt_s`` the step (s); ``keep_right_rad`` the clockwise turn of a blocked
-        preferred velocity (rad, 0: none); ``v_max_mps`` the speed limit (m/s)."""
+        preferred velocity (rad, 0: none); ``v_max_mps`` the speed limit (m/s);
+        ``hard_radius_m`` (m, at most ``combined_radius_m``; negative: the same) the radius
+        below which a pair is taken as colliding: between it and ``combined_radius_m`` (the
+        margin for a robot's uncertainty) a pair keeps its distance rather than being
+        pushed apart within one step."""
         if not 0 <= max_neighbours <= MAX_NEIGHBOURS:
             raise ValueError(f"ORCA considers 0 to {MAX_NEIGHBOURS} neighbours, "
                              f"not {max_neighbours}")
         self.max_neighbours = max_neighbours
         self.range_sq = neighbour_dist_m * neighbour_dist_m
         self.combined = combined_radius_m
+        self.hard = combined_radius_m if hard_radius_m < 0 else min(hard_radius_m,
+                                                                     combined_radius_m)
         self.dt = dt_s
         self.keep_right = keep_right_rad
         self.v_max = v_max_mps
@@ -309,6 +321,9 @@ class OrcaFilter:
         oy: cython.double = vel[e, i, 1]
         combined: cython.double = self.combined
         combined_sq: cython.double = combined * combined
+        hard: cython.double = self.hard
+        r: cython.double
+        r_sq: cython.double
         inv_tau: cython.double = 1.0 / horizon_s
         inv_dt: cython.double = 1.0 / self.dt
         v_max: cython.double = self.v_max
@@ -354,27 +369,36 @@ class OrcaFilter:
                     nvx = nvy = 0.0
                 rvx = ox - nvx  # own velocity relative to the neighbour
                 rvy = oy - nvy
-                if dist_sq > combined_sq:
+                r = combined
+                r_sq = combined_sq
+                if dist_sq <= combined_sq and hard < combined:
+                    # inside the margin, not the hard radius: the margin shrinks to the room
+                    # there is (keep this distance), never an escape within one step
+                    r = sqrt(dist_sq) - MARGIN_ROOM_M
+                    if r < hard:
+                        r = hard
+                    r_sq = r * r
+                if dist_sq > r_sq:
                     # no collision yet: the velocity obstacle, cut off at the horizon
                     wx = rvx - inv_tau * rpx
                     wy = rvy - inv_tau * rpy
                     w_len_sq = wx * wx + wy * wy
                     dot = wx * rpx + wy * rpy
-                    if dot < 0.0 and dot * dot > combined_sq * w_len_sq:
+                    if dot < 0.0 and dot * dot > r_sq * w_len_sq:
                         w_len = sqrt(w_len_sq)  # project on the cut-off circle
                         dx = wy / w_len
                         dy = -(wx / w_len)
-                        s = combined * inv_tau - w_len
+                        s = r * inv_tau - w_len
                         ux = s * (wx / w_len)
                         uy = s * (wy / w_len)
                     else:
-                        leg = sqrt(dist_sq - combined_sq)  # project on a leg of the cone
+                        leg = sqrt(dist_sq - r_sq)  # project on a leg of the cone
                         if rpx * wy - rpy * wx > 0.0:  # left leg
-                            dx = (rpx * leg - rpy * combined) / dist_sq
-                            dy = (rpx * combined + rpy * leg) / dist_sq
+                            dx = (rpx * leg - rpy * r) / dist_sq
+                            dy = (rpx * r + rpy * leg) / dist_sq
                         else:  # right leg
-                            dx = -(rpx * leg + rpy * combined) / dist_sq
-                            dy = -(-rpx * combined + rpy * leg) / dist_sq
+                            dx = -(rpx * leg + rpy * r) / dist_sq
+                            dy = -(-rpx * r + rpy * leg) / dist_sq
                         dot = rvx * dx + rvy * dy
                         ux = dot * dx - rvx
                         uy = dot * dy - rvy
@@ -396,7 +420,7 @@ class OrcaFilter:
                             cy = -1.0
                     dx = cy
                     dy = -cx
-                    s = combined * inv_dt - w_len
+                    s = r * inv_dt - w_len
                     ux = s * cx
                     uy = s * cy
                 lines[c, 0] = ox + 0.5 * ux  # half the responsibility each

@@ -240,5 +240,5 @@ def config_from_args(
         sensing_seed=args.sensing_seed,
     )
     if safety is not None:
-        safety = uncertainty_params(safety, conditions, args.estimator, world)
+        safety = uncertainty_params(safety, conditions, world)
     return cfg, safety
