@@ -27,8 +27,12 @@ Nothing waits on another robot's decision. Every decision goes through the
 brain's spec names, the brain, clamp to v_max, the ORCA safety filter.
 
 Faults (DESIGN.md section 4): a malformed message on any key is dropped and
-counted; a brain that outputs NaN/inf makes the robot hold still (counted as an
-error); when no pose arrives for ``--watchdog-s`` the robot publishes a zero
+counted; a step whose brain output is NaN/inf is decided by the fallback the
+user chose (``--nonfinite-fallback``: ``rule``, the default, decides it with
+``rule:frame-balanced`` -- the shipped plan brains' own base -- or with the
+robot's own rule brain; ``hold`` holds still for the step, counted as an
+error), counted either way in the status (``nonfinite_fallbacks``), so the log
+shows it; when no pose arrives for ``--watchdog-s`` the robot publishes a zero
 command once and stops acting until poses return; with
 ``--exit-after-silence-s S`` it exits (code 0) once the world it had heard has
 been silent S seconds.
@@ -79,20 +83,21 @@ from typing import Final
 
 import zenoh
 
-from runtime.brain.brain import Brain, BrainError, load_brain, short_id
+from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
 from runtime.decision.controller import Controller
 from runtime.decision.patterns import PatternError
-from runtime.decision.pipeline import Decision
+from runtime.decision.pipeline import ERR_NONFINITE, Decision
 from runtime.decision.safety import OrcaParams
 from runtime.decision.team_pattern import TeamPattern
 from runtime.errors import InputError
 from runtime.log import Log, one_line
 from runtime.net.session import ZenohSetupError, direct, open_session_from_args
-from runtime.robot.cli import RobotConfig, add_arguments, config_from_args
+from runtime.robot.cli import FALLBACK_RULE, RobotConfig, add_arguments, config_from_args
 from runtime.robot.inbox import PoseInbox, Step
 from runtime.robot.status import RobotStats
 from runtime.robot.swap_worker import SwapReply, SwapWorker
+from runtime.types import Array
 from runtime.wire import keys
 from runtime.wire.messages import (
     Command,
@@ -149,6 +154,8 @@ class Robot:
         self.id = cfg.robot_id
         self.log = log if log is not None else Log(f"robot {cfg.robot_id}", False)
         self.controller = Controller(brain, world, safety)
+        self._fallback: Controller | None = None  # decides the steps a brain's NaN would lose
+        self._fallback_step = -2  # the last step it decided (its history is fresh after it)
         self.stats = RobotStats()
         self.inbox = PoseInbox(
             self.id,
@@ -351,6 +358,8 @@ class Robot:
                 d = self.controller.decide(
                     step.ids.index(self.id), step.positions, pattern, step.step
                 )
+                if d.error == ERR_NONFINITE:
+                    d = self._nonfinite(step, pattern, d)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -359,6 +368,27 @@ class Robot:
                 self.log("warning", "hold", d.error, step=step.step)
             self.stats.error(d.error, count=pattern is not None)  # no pattern yet: no error
         return d
+
+    def _nonfinite(self, step: Step, pattern: Array, d: Decision) -> Decision:
+        """A step whose brain output is not finite: counted, and decided by the fallback."""
+        self.stats.nonfinite()
+        if self.cfg.nonfinite_fallback == "hold":
+            return d
+        fb = self._fallback
+        if fb is None:
+            own = self.controller.brain
+            rule = own if own.brain_id.startswith(RULE_PREFIX) else load_brain(FALLBACK_RULE,
+                                                                                 self.world)
+            fb = self._fallback = Controller(rule, self.world, self.controller.safety)
+        if self._fallback_step != step.step - 1:  # not the step after its last: no history
+            fb.reset()
+            self.log("warning", "fallback", f"{ERR_NONFINITE.split(':')[0]}: "
+                     f"deciding by {fb.brain.brain_id}", step=step.step)
+            self.stats.error(f"{ERR_NONFINITE.split(':')[0]}: decided by {fb.brain.brain_id}",
+                             count=False)
+        self._fallback_step = step.step
+        fd = fb.decide(step.ids.index(self.id), step.positions, pattern, step.step)
+        return d if fd.error else fd
 
     def _send(self, step: int, d: Decision) -> None:
         self._publish_cmd(step, d)
@@ -381,6 +411,7 @@ class Robot:
 
     def _install(self, brain: Brain) -> None:
         self.controller.set_brain(brain)
+        self._fallback = None  # the fallback follows a new rule brain
         self.pattern.use_brain(brain)
 
     def _publish_cmd(self, step: int, d: Decision) -> None:
