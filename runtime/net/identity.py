@@ -11,7 +11,9 @@ identity        may publish (Zenoh ``put`` / liveliness token / reply)
                 each pattern between phases, liveliness ``alive/world``
 ``robot-<i>``   its own ``robot/<i>/cmd`` and ``robot/<i>/status``, liveliness
                 ``alive/<i>``
-``operator``    ``brain`` and ``pattern``
+``operator``    ``brain`` and ``operator/pattern`` (a pattern between the world's phases:
+                only the world puts on ``pattern``, which keeps its phases from
+                being locked out, :mod:`runtime.decision.team_pattern`)
 ``router``      anything of the swarm: a Zenoh router relays what it already
                 checked when it received it
 ==============  ===================================================================
@@ -146,7 +148,8 @@ def access_control(swarm: str, n_robots: int) -> dict[str, Any]:
               ingress),
         _rule("world-alive", ["liveliness_token"], [keys.alive_key(swarm, keys.WORLD_ID)],
               ingress),
-        _rule("operator-put", ["put"], [keys.brain_key(swarm), keys.pattern_key(swarm)], ingress),
+        _rule("operator-put", ["put"], [keys.brain_key(swarm), keys.operator_pattern_key(swarm)],
+              ingress),
         _rule("router-relay", ["put", "delete", "declare_queryable", "reply", "liveliness_token"],
               [f"{root}/**"], ingress),
     ]

@@ -207,6 +207,8 @@ class Robot:
         self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
         z.callback(self._drop_pose_keys)
         z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
+        z.enter_context(s.declare_subscriber(keys.operator_pattern_key(sw),
+                                             self._on_operator_pattern))
         z.enter_context(s.declare_subscriber(keys.brain_key(sw), self._on_brain))
         z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
         self.swaps.start()
@@ -271,14 +273,17 @@ class Robot:
     def _on_pattern(self, sample: zenoh.Sample) -> None:
         self._take_pattern(sample.payload.to_bytes())
 
+    def _on_operator_pattern(self, sample: zenoh.Sample) -> None:
+        self._take_pattern(sample.payload.to_bytes(), operator=True)
+
     def _on_pattern_reply(self, reply: zenoh.Reply) -> None:
         ok = reply.ok
         if ok is not None:
             self._take_pattern(ok.payload.to_bytes())
 
-    def _take_pattern(self, payload: bytes) -> None:
+    def _take_pattern(self, payload: bytes, operator: bool = False) -> None:
         try:
-            self.pattern.offer(decode_pattern(payload))
+            self.pattern.offer(decode_pattern(payload), operator)
         except (MessageError, PatternError) as e:  # sizes, values, then meaning
             self._drop("pattern", str(e))
         except Exception as e:  # whatever arrives, never a traceback on Zenoh's thread

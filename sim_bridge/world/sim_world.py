@@ -344,7 +344,7 @@ class SimWorld:
         """A new version of the pattern at the live team size: published and logged."""
         n = len(self.physics.ids)
         pts = make_pattern(name, n, self.w)
-        self.version += 1
+        self.version = self.link.next_pattern_version()  # above any operator pattern held
         msg = PatternMsg(self.version, pattern_label(name), pts, self.w.formed_tol_m)
         self.link.put_pattern(encode_pattern(msg))
         self.journal.event("pattern", version=self.version, name=msg.name, n=n, reason=reason,

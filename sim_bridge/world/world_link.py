@@ -51,6 +51,7 @@ from contextlib import ExitStack
 import numpy as np
 import zenoh
 
+from runtime.decision.team_pattern import MAX_VERSION_STEP
 from runtime.net.session import direct
 from runtime.types import Array
 from runtime.wire import keys
@@ -60,6 +61,7 @@ from runtime.wire.messages import (
     Pose,
     PoseBatch,
     decode_command,
+    decode_pattern,
     decode_status,
     encode_pose,
     encode_poses,
@@ -114,6 +116,8 @@ class WorldLink:
         self._listened: set[int] = set()  # robots whose pose key someone subscribes to
         self._prev_pos: dict[int, tuple[float, float]] = {}
         self._pattern_payload = b""
+        self._own_version = 0  # the world's last pattern version
+        self._operator_top = 0  # the highest operator pattern version since (0: none)
         self.pattern_sent_s = 0.0
         """``time.monotonic()`` of the last pattern put."""
 
@@ -186,6 +190,9 @@ class WorldLink:
         if self.rec is not None:
             self.rec.write_wire(key, payload)
         k = keys.parse_key(key)
+        if k is not None and k.kind == keys.OPERATOR_PATTERN:
+            self._on_operator_pattern(key, payload)
+            return
         if k is None or k.robot_id is None:
             return
         if k.kind == keys.CMD:
@@ -249,6 +256,25 @@ class WorldLink:
             self._brain_of[rid] = brain_id
 
     # ------------------------------------------------------------ pattern
+
+    def _on_operator_pattern(self, key: str, payload: bytes) -> None:
+        try:
+            v = decode_pattern(payload).version
+        except MessageError as e:
+            self._malformed(key, str(e))
+            return
+        with self.cond:  # what robots may take: at most MAX_VERSION_STEP past the world's
+            if self._own_version < v < self._own_version + MAX_VERSION_STEP:
+                self._operator_top = max(self._operator_top, v)
+
+    def next_pattern_version(self) -> int:
+        """The version of the world's next pattern: above its last and above every operator
+        pattern robots may hold, at most ``MAX_VERSION_STEP`` past its last (why:
+        :mod:`runtime.decision.team_pattern`)."""
+        with self.cond:
+            self._own_version = max(self._own_version, self._operator_top) + 1
+            self._operator_top = 0
+            return self._own_version
 
     def put_pattern(self, payload: bytes | None = None) -> None:
         """Publish the pattern (a new one, or the current one again) and log it."""
