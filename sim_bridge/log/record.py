@@ -13,7 +13,12 @@ SIGTERM finishes the file (summary and index); so does ``--duration-s``.
 Zenoh: the standard options (:func:`runtime.net.session.add_zenoh_arguments`);
 by default the recorder connects to the swarm's world on this machine.
 
-Exit codes: 0 when the file is finished; 2 on bad input or when Zenoh cannot open.
+A recording that heard nothing of the swarm (no sample on its keys, e.g. the
+swarm runs on another port: ``patternrl launch`` prints the flags that reach it)
+is not kept: one line says so, the file is removed and the exit code is 1.
+
+Exit codes: 0 when the file is finished; 1 when nothing was heard (no file); 2 on bad
+input or when Zenoh cannot open.
 """
 
 from __future__ import annotations
@@ -30,7 +35,12 @@ from types import FrameType
 import zenoh
 
 from runtime.errors import InputError
-from runtime.net.session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
+from runtime.net.session import (
+    ZenohSetupError,
+    add_zenoh_arguments,
+    open_session_from_args,
+    world_endpoint,
+)
 from runtime.wire import keys
 from sim_bridge.log.recorder import Recorder, check_output
 
@@ -130,6 +140,22 @@ def run(args: argparse.Namespace) -> int:
         session.close()  # type: ignore[no-untyped-call]
         for s, h in old.items():
             signal.signal(s, h)
+    if sr.samples == 0:  # an empty log would read as a swarm that did nothing
+        Path(args.out).unlink(missing_ok=True)
+        print(f"patternrl record: error: heard nothing from swarm {args.swarm} at "
+              f"{_where(args)}: is it running there? (patternrl launch prints the flags that "
+              f"reach its swarm); no log written", file=sys.stderr)
+        return 1
     print(f"patternrl record: {sr.samples} samples, {rec.messages_written} messages, "
           f"last step {sr.last_step}: {args.out}", file=sys.stderr)
     return 0
+
+
+def _where(args: argparse.Namespace) -> str:
+    """Where the recorder looked for the swarm, in the user's terms."""
+    if args.connect:
+        return ", ".join(args.connect)
+    try:
+        return world_endpoint(args.swarm, args.zenoh_port).split("/", 1)[1]
+    except ZenohSetupError:
+        return "its default port"
