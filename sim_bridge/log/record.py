@@ -8,6 +8,10 @@ the same way (phases from the pattern messages on the wire; a robot's arrival or
 departure as ``join``/``leave`` events). It works for a simulated swarm and for
 real robots alike; ``log_time`` is the wall clock as the samples arrived.
 
+Each key may cost the log only so much per second (:mod:`sim_bridge.log.budget`):
+a flood is dropped, counted (the summary line, the ``run_end`` event) and said once
+per key (an ``over_budget`` event).
+
 The output is refused if it exists (``--force`` overwrites). Ctrl-C (SIGINT) or
 SIGTERM finishes the file (summary and index); so does ``--duration-s``.
 Zenoh: the standard options (:func:`runtime.net.session.add_zenoh_arguments`);
@@ -42,6 +46,7 @@ from runtime.net.session import (
     world_endpoint,
 )
 from runtime.wire import keys
+from sim_bridge.log.budget import Budget, KeyBudget
 from sim_bridge.log.recorder import Recorder, check_output
 
 
@@ -64,6 +69,8 @@ class SwarmRecorder:
         self.rec = rec
         self.samples = 0
         self.last_step = 0
+        self.budget = KeyBudget(self._over_budget)
+        """What each key may cost the log per second (:mod:`sim_bridge.log.budget`)."""
         self._lock = threading.Lock()
         self._stack = ExitStack()
 
@@ -79,11 +86,18 @@ class SwarmRecorder:
     def __exit__(self, *exc: object) -> None:
         self._stack.close()
         self.rec.event("run_end", self.last_step, 0.0, outcome="recorded",
-                       steps=self.last_step, samples=self.samples)
+                       steps=self.last_step, samples=self.samples,
+                       over_budget=self.budget.dropped)
+
+    def _over_budget(self, key: str, budget: Budget) -> None:
+        self.rec.event("over_budget", self.last_step, 0.0, key=key,
+                       messages_per_s=budget.messages, bytes_per_s=budget.bytes)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
+        if not self.budget.allow(key, len(payload)):  # a flood: dropped, counted
+            return
         k = keys.parse_key(key)
         if k is not None and k.kind == keys.POSE and len(payload) >= 14:
             step = int.from_bytes(payload[6:14], "little")  # the pose's step (wire layout)
@@ -146,8 +160,10 @@ def run(args: argparse.Namespace) -> int:
               f"{_where(args)}: is it running there? (patternrl launch prints the flags that "
               f"reach its swarm); no log written", file=sys.stderr)
         return 1
+    over = (f", {sr.budget.dropped} dropped over their key's budget"
+            if sr.budget.dropped else "")
     print(f"patternrl record: {sr.samples} samples, {rec.messages_written} messages, "
-          f"last step {sr.last_step}: {args.out}", file=sys.stderr)
+          f"last step {sr.last_step}{over}: {args.out}", file=sys.stderr)
     return 0
 
 

@@ -208,6 +208,7 @@ class SimWorld:
             self.journal.event(
                 "run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),
                 formed=[p.formed for p in phases], malformed=self.malformed,
+                over_budget=self.link.budget.dropped,
                 contacts_total=self.physics.contacts_total)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),

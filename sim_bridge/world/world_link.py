@@ -66,6 +66,7 @@ from runtime.wire.messages import (
     encode_pose,
     encode_poses,
 )
+from sim_bridge.log.budget import Budget, KeyBudget
 from sim_bridge.log.recorder import Recorder
 from sim_bridge.world.membership import Roster
 
@@ -92,6 +93,8 @@ class WorldLink:
         self.rec = recorder
         self._event = event
         self.malformed = 0
+        self.budget = KeyBudget(self._over_budget)
+        """What each key may cost per second (:mod:`sim_bridge.log.budget`); its drops."""
         self.latencies_ms: list[float] = []
         """Pose-to-command latency of every command that made its step."""
         self.decision_us: list[float] = []
@@ -187,6 +190,8 @@ class WorldLink:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
+        if not self.budget.allow(key, len(payload)):  # a flood: not handled, not logged
+            return
         if self.rec is not None:
             self.rec.write_wire(key, payload)
         k = keys.parse_key(key)
@@ -209,6 +214,10 @@ class WorldLink:
             self.roster.heard(k.robot_id)
             with self.cond:
                 self._brain_of[st.robot_id] = st.brain_id
+
+    def _over_budget(self, key: str, budget: Budget) -> None:
+        self._event("over_budget", key=key, messages_per_s=budget.messages,
+                    bytes_per_s=budget.bytes)
 
     def _malformed(self, key: str, why: str) -> None:
         self.malformed += 1
