@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.metadata
+import os
 import sys
 import tomllib
 from pathlib import Path
@@ -73,12 +74,32 @@ def _top_parser() -> argparse.ArgumentParser:
     return p
 
 
+EXIT_CLOSED_STDOUT = 141
+"""The exit code when the reader of stdout went away (``patternrl ... | head -1``): 128 +
+SIGPIPE, what a shell reports for a tool that a closed pipe ended."""
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
-        return _main(argv)
+        code = _main(argv)
+        sys.stdout.flush()  # a closed stdout shows here, not in the interpreter's exit
+        return code
     except KeyboardInterrupt:  # Ctrl-C while starting up (imports, options): one line
         print("patternrl: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader closed stdout: stop quietly, nothing to tell it
+        _silence_stdout()
+        return EXIT_CLOSED_STDOUT
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's last flush does not fail too."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # no real stdout (a test's capture): nothing to flush
+        pass
 
 
 def _main(argv: list[str] | None = None) -> int:

@@ -16,24 +16,38 @@ one pattern forms that pattern whatever the swarm's key says (it knows no
 other); any other brain forms the newest pattern message of the swarm, else
 the robot's ``--pattern`` default.
 
-Which pattern message is the newest (the version rule): the world numbers its
-patterns 1, 2, 3, ... (one per phase and per resize). A robot takes
+Which pattern message is the newest (the version rule). Two sources send patterns,
+on two keys: the world on ``pattern`` (its phases, 1, 2, 3, ...: one per phase and
+per resize) and an operator on ``operator/pattern`` (a pattern of its own choice,
+between the world's). A robot keeps ``W``, the version of the last *world* pattern it
+took, and ``H``, the version of the pattern it holds (the world's or an operator's):
 
-- its first message if its version is at most :data:`MAX_PATTERN_VERSION` (2^32 - 1);
-- later, only a version greater than the one it holds by at most
-  :data:`MAX_VERSION_STEP`; the same version again is the world's republish and
-  changes nothing; an older one is refused;
-- after the world restarted (its own pose's step went back), any version up to
-  :data:`MAX_PATTERN_VERSION` again.
+- a world pattern ``v`` is taken when ``W < v <= W + S`` (the world's republish of
+  ``W`` changes nothing; the first one, and the first after the world restarted --
+  its own pose's step went back -- any ``v`` up to :data:`MAX_PATTERN_VERSION`);
+- an operator pattern ``v`` is taken when ``H < v <= W + S``: newer than what the
+  robot holds, and at most ``S`` past the world's last;
 
-So a message cannot jump to the end of the version range and lock the target
-for the rest of a run (the robots would ignore every later pattern of the
-world). A message is also refused when no team could form it: fewer than 2
-points, two points closer than 2R, or points that cannot be fitted to the team
-the robot sees now. Every refusal is a :class:`PatternError` the robot counts
-as a dropped message. What the version rule cannot stop is a peer that sends
-the next version first: only authenticated transport (who may publish on the
-pattern key) stops that.
+with ``S`` = :data:`MAX_VERSION_STEP`. The world numbers its next pattern
+``max(own, O) + 1``, ``O`` the highest operator version it has seen below
+``own + S`` (none: ``own``), so its next is at most ``own + S``, and an operator
+pattern sent before the world's next phase is older than it when it arrives late.
+
+**No pattern locks out the world's next phase.** Whether a robot takes the world's
+next pattern depends on ``W`` only, and only a world pattern moves ``W`` (operator
+patterns move ``H``, never ``W``). The world's versions are ``w_1 < w_2 < ...``
+with ``w_{k+1} - w_k <= S``, so a robot holding ``W = w_k`` takes ``w_{k+1}``
+whatever operator patterns it took or refused, in whatever order they came. Nor
+can the world reach the end of the range: ``w_k <= k S``, and
+:data:`MAX_PATTERN_VERSION` is ``2^53 - 1``, 9 x 10^12 phases at ``S`` = 1000. This
+rests on who may publish on which key: with the swarm's identities, only the world
+may put on ``pattern`` and the operator on ``operator/pattern``
+(:mod:`runtime.net.identity`); without them, anyone who speaks on the world's key
+speaks as the world.
+
+A message is also refused when no team could form it: fewer than 2 points, two
+points closer than 2R, or points that cannot be fitted to the team the robot sees
+now. Every refusal is a :class:`PatternError` the robot counts as a dropped message.
 """
 
 from __future__ import annotations
@@ -61,10 +75,10 @@ if TYPE_CHECKING:
 
 __all__ = ["MAX_PATTERN_VERSION", "MAX_VERSION_STEP", "TeamPattern", "fit_pattern"]
 
-MAX_PATTERN_VERSION: Final = (1 << 32) - 1
-"""The highest pattern version a robot takes: 4 billion phases and resizes."""
+MAX_PATTERN_VERSION: Final = (1 << 53) - 1
+"""The highest pattern version a robot takes (exact as a JSON number in the log)."""
 MAX_VERSION_STEP: Final = 1000
-"""How far a new pattern version may be ahead of the one a robot holds."""
+"""How far a pattern version may be ahead of the world's last one a robot took."""
 
 
 def fit_pattern(name: str, points: Array, n: int, world: WorldConfig = DEFAULT_WORLD) -> Array:
@@ -106,6 +120,7 @@ class TeamPattern:
         self._cache: tuple[object, int, Array | None, str] | None = None
         self._team_n = 0  # the team of the last for_team: a new message must fit it
         self._restarted = False
+        self._world_v: int | None = None  # the version of the world's last pattern taken
 
     def _say(self, level: str, msg: str) -> None:
         if self._log is not None:
@@ -122,27 +137,36 @@ class TeamPattern:
             except PatternError as e:
                 self._say("warning", f"brain's own pattern unusable: {e}")
 
-    def offer(self, msg: PatternMsg) -> None:
-        """A pattern message from the swarm: taken by the version rule (module docstring).
+    def offer(self, msg: PatternMsg, operator: bool = False) -> None:
+        """A pattern message of the world (or, ``operator``, of an operator): taken by
+        the version rule (module docstring).
 
         Raises :class:`PatternError` with the reason for a message refused: a
         version out of bounds, fewer than 2 points, points closer than 2R, or
         points that cannot be fitted to the team seen now.
         """
         with self._lock:
-            held = self._msg
-            fresh = held is None or self._restarted
+            held, world_v, fresh = self._msg, self._world_v, self._restarted
         v = msg.version
         if v > MAX_PATTERN_VERSION:
             raise PatternError(f"pattern version {v} beyond {MAX_PATTERN_VERSION}")
-        if not fresh and held is not None:
-            if v == held.version:
+        base = 0 if fresh or world_v is None else world_v  # the world's last taken
+        if operator:
+            h = 0 if fresh or held is None else held.version
+            if v <= h:
+                raise PatternError(f"operator pattern version {v} is not newer than the "
+                                   f"held {h}")
+            if v > base + MAX_VERSION_STEP:
+                raise PatternError(f"operator pattern version {v} is more than "
+                                   f"{MAX_VERSION_STEP} past the world's {base}")
+        elif not fresh and world_v is not None:
+            if v == world_v:
                 return  # the world's republish
-            if v < held.version:
-                raise PatternError(f"pattern version {v} is older than the held {held.version}")
-            if v > held.version + MAX_VERSION_STEP:
+            if v < world_v:
+                raise PatternError(f"pattern version {v} is older than the world's {world_v}")
+            if v > world_v + MAX_VERSION_STEP:
                 raise PatternError(
-                    f"pattern version {v} jumps more than {MAX_VERSION_STEP} past {held.version}"
+                    f"pattern version {v} jumps more than {MAX_VERSION_STEP} past {world_v}"
                 )
         if len(msg.points) < 2 or not min_spacing(msg.points) >= self.world.min_separation_m:
             raise PatternError(f"'{msg.name}' has fewer than 2 points or points closer than 2R")
@@ -150,14 +174,17 @@ class TeamPattern:
         if n >= 2:  # a pattern the team cannot form would hold every robot still
             fit_pattern(msg.name, np.asarray(msg.points, np.float64), n, self.world)
         with self._lock:
-            if self._msg is held:
+            if self._msg is held and self._world_v == world_v:
                 self._msg = msg
-                self._restarted = False
+                if not operator:
+                    self._world_v = v
+                    self._restarted = False
 
     def world_restarted(self) -> None:
         """The world started again: its pattern versions count from 1 again."""
         with self._lock:
             self._restarted = True
+            self._world_v = None
 
     def for_team(self, n: int) -> tuple[Array | None, str]:
         """The (n, 2) target in metres for a team of ``n``, or (None, why there is none)."""

@@ -11,12 +11,18 @@ identity        may publish (Zenoh ``put`` / liveliness token / reply)
                 each pattern between phases, liveliness ``alive/world``
 ``robot-<i>``   its own ``robot/<i>/cmd`` and ``robot/<i>/status``, liveliness
                 ``alive/<i>``
-``operator``    ``brain`` and ``pattern``
+``operator``    ``brain`` and ``operator/pattern`` (a pattern between the world's phases:
+                only the world puts on ``pattern``, which keeps its phases from
+                being locked out, :mod:`runtime.decision.team_pattern`)
 ``router``      anything of the swarm: a Zenoh router relays what it already
                 checked when it received it
 ==============  ===================================================================
 
-Every identity may subscribe to, and query, any key of its swarm. Zenoh enforces
+Every identity may subscribe to, and query, any key of its swarm. A robot takes
+what the world, the operator and the router publish, never what another robot
+does (it needs none of it), so a robot's rules do not name the other robots: a
+robot's ``zenoh.json5`` is the same size for any team, and only the world's, the
+operator's and the router's grow with it (:func:`access_control`). Zenoh enforces
 this itself: mutual TLS (each side of every link proves its certificate to the
 other; the certificate's common name is the identity) and Zenoh access control
 (``access_control`` in the config) on every *ingress* message, by the common
@@ -78,6 +84,7 @@ __all__ = [
     "default_identity_name",
     "find_identity",
     "identity_zenoh_config",
+    "is_robot",
     "load_identity",
     "robot_identity",
     "tls_section",
@@ -106,6 +113,11 @@ def robot_identity(robot_id: int) -> str:
     return f"robot-{int(robot_id)}"
 
 
+def is_robot(name: str) -> bool:
+    """Whether ``name`` is a robot's identity (``robot-<id>``)."""
+    return name.startswith("robot-") and name[len("robot-"):].isdigit()
+
+
 def default_identity_name(role: RoleName, robot_id: int | None = None) -> str:
     """The identity a process of ``role`` speaks as unless told otherwise."""
     if role == "robot":
@@ -123,12 +135,18 @@ def _rule(rid: str, messages: list[str], key_exprs: list[str], flows: list[str])
             "key_exprs": key_exprs}
 
 
-def access_control(swarm: str, n_robots: int) -> dict[str, Any]:
+def access_control(swarm: str, n_robots: int, hears_robots: bool = True) -> dict[str, Any]:
     """Zenoh ``access_control`` of a swarm of ``n_robots`` robots (the table above).
 
     Default deny; every rule is an *ingress* allow rule keyed by the certificate
     common name of the link a message arrives on; egress is open (the receiver
-    decides). One rule per robot: Zenoh has no per-subject key templates.
+    decides). The roles' rules are written once; a robot's own keys need a rule per
+    robot (Zenoh's rules name fixed key expressions, with no per-subject template),
+    and only ``hears_robots`` identities carry them: the world, the operator's tools
+    and the router, which take what robots publish. A robot takes nothing from
+    another robot (it decides from the world's poses), so its rules name the roles
+    only: its ``zenoh.json5`` has the same size whatever the team, and a swarm's
+    rules grow linearly with the team (three identities of O(n), n of O(1)).
     """
     keys.validate_swarm(swarm)
     root = f"{keys.PREFIX}/{swarm}"
@@ -146,7 +164,8 @@ def access_control(swarm: str, n_robots: int) -> dict[str, Any]:
               ingress),
         _rule("world-alive", ["liveliness_token"], [keys.alive_key(swarm, keys.WORLD_ID)],
               ingress),
-        _rule("operator-put", ["put"], [keys.brain_key(swarm), keys.pattern_key(swarm)], ingress),
+        _rule("operator-put", ["put"], [keys.brain_key(swarm), keys.operator_pattern_key(swarm)],
+              ingress),
         _rule("router-relay", ["put", "delete", "declare_queryable", "reply", "liveliness_token"],
               [f"{root}/**"], ingress),
     ]
@@ -163,7 +182,7 @@ def access_control(swarm: str, n_robots: int) -> dict[str, Any]:
         {"id": "operator", "rules": ["operator-put"], "subjects": [OPERATOR]},
         {"id": "router", "rules": ["router-relay"], "subjects": [ROUTER]},
     ]
-    for i in range(n_robots):
+    for i in range(n_robots if hears_robots else 0):
         name = robot_identity(i)
         rules.append(_rule(f"{name}-put", ["put"],
                            [keys.cmd_key(swarm, i), keys.status_key(swarm, i)], ingress))
@@ -199,7 +218,7 @@ def identity_zenoh_config(directory: Path, name: str, swarm: str,
         "mode": "router" if name == ROUTER else "peer",
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"tls": tls_section(directory)}},
-        "access_control": access_control(swarm, n_robots),
+        "access_control": access_control(swarm, n_robots, hears_robots=not is_robot(name)),
     }
 
 
@@ -312,7 +331,7 @@ def check_role(ident: Identity, role: RoleName, robot_id: int | None = None) -> 
                             f"{META_FILE} says {ident.name!r}")
     if role == "robot":
         if robot_id is None:
-            if cn.startswith("robot-") and cn[len("robot-"):].isdigit():
+            if is_robot(cn):
                 return
             raise IdentityError(f"identity {cn} is not a robot's (robot-<id>)")
         if cn != robot_identity(robot_id):

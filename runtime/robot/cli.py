@@ -15,7 +15,13 @@ from runtime.net.session import add_zenoh_arguments
 from runtime.wire import keys
 from runtime.world_config import WorldConfig
 
-__all__ = ["RobotConfig", "add_arguments", "config_from_args"]
+__all__ = ["FALLBACK_RULE", "NONFINITE_FALLBACKS", "RobotConfig", "add_arguments",
+           "config_from_args"]
+
+NONFINITE_FALLBACKS = ("rule", "hold")
+FALLBACK_RULE = "rule:frame-balanced"
+"""The rule a robot falls back on when its brain's output is not finite: the shipped plan
+brains' own base, so a step decided by it is the step the brain was built on."""
 
 
 @dataclass
@@ -33,6 +39,9 @@ class RobotConfig:
     status_period_s: float = 1.0
     pattern: str | None = None
     world_timeout_s: float = 30.0
+    nonfinite_fallback: str = "rule"
+    """What decides a step whose brain output is not finite: ``rule`` (the brain's base rule,
+    :data:`FALLBACK_RULE`, or the robot's own rule brain) or ``hold`` (hold still)."""
     trust: TrustedKeys | None = None
     """Keys a brain must be signed by (None: unchecked, for embedding and tests)."""
     conditions: Conditions = PERFECT
@@ -97,6 +106,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=30.0,
         help="exit (code 1, one line) when the world is silent this long, or when no pose "
         "came this long after the start (default 30; 0: never)",
+    )
+    parser.add_argument(
+        "--nonfinite-fallback",
+        choices=NONFINITE_FALLBACKS,
+        default="rule",
+        help="a step whose brain output is not finite (NaN, inf) is decided by the rule "
+        f"({FALLBACK_RULE}, or the robot's own rule brain) or the robot holds still (hold); "
+        "counted in the status (nonfinite_fallbacks) either way (default rule)",
     )
     parser.add_argument(
         "--trust",
@@ -233,6 +250,7 @@ def config_from_args(
         status_period_s=args.status_period_s,
         pattern=args.pattern,
         world_timeout_s=args.world_timeout_s,
+        nonfinite_fallback=args.nonfinite_fallback,
         trust=default_trust(args.trust),
         debug_delay_ms=args.debug_delay_ms,
         conditions=conditions,

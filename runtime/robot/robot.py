@@ -27,8 +27,12 @@ Nothing waits on another robot's decision. Every decision goes through the
 brain's spec names, the brain, clamp to v_max, the ORCA safety filter.
 
 Faults (DESIGN.md section 4): a malformed message on any key is dropped and
-counted; a brain that outputs NaN/inf makes the robot hold still (counted as an
-error); when no pose arrives for ``--watchdog-s`` the robot publishes a zero
+counted; a step whose brain output is NaN/inf is decided by the fallback the
+user chose (``--nonfinite-fallback``: ``rule``, the default, decides it with
+``rule:frame-balanced`` -- the shipped plan brains' own base -- or with the
+robot's own rule brain; ``hold`` holds still for the step, counted as an
+error), counted either way in the status (``nonfinite_fallbacks``), so the log
+shows it; when no pose arrives for ``--watchdog-s`` the robot publishes a zero
 command once and stops acting until poses return; with
 ``--exit-after-silence-s S`` it exits (code 0) once the world it had heard has
 been silent S seconds.
@@ -80,19 +84,19 @@ from typing import Final
 import numpy as np
 import zenoh
 
-from runtime.brain.brain import Brain, BrainError, load_brain, short_id
+from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
 from runtime.decision.controller import Controller
 from runtime.decision.local import Perception
 from runtime.decision.patterns import PatternError
-from runtime.decision.pipeline import Decision
+from runtime.decision.pipeline import ERR_NONFINITE, Decision
 from runtime.decision.safety import OrcaParams
 from runtime.decision.settle import settle_for
 from runtime.decision.team_pattern import TeamPattern
 from runtime.errors import InputError
 from runtime.log import Log, one_line
 from runtime.net.session import ZenohSetupError, direct, open_session_from_args
-from runtime.robot.cli import RobotConfig, add_arguments, config_from_args
+from runtime.robot.cli import FALLBACK_RULE, RobotConfig, add_arguments, config_from_args
 from runtime.robot.inbox import PoseInbox, Step
 from runtime.robot.status import RobotStats
 from runtime.robot.swap_worker import SwapReply, SwapWorker
@@ -156,6 +160,8 @@ class Robot:
                                      settle_for(cfg.conditions, cfg.estimator, world))
         self._perception: Perception | None = None  # for the team of the last decision
         self._perceived: tuple[int, tuple[Array, Array | None, Array | None]] | None = None
+        self._fallback: Controller | None = None  # decides the steps a brain's NaN would lose
+        self._fallback_step = -2  # the last step it decided (its history is fresh after it)
         self.stats = RobotStats()
         self.inbox = PoseInbox(
             self.id,
@@ -207,6 +213,8 @@ class Robot:
         self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
         z.callback(self._drop_pose_keys)
         z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
+        z.enter_context(s.declare_subscriber(keys.operator_pattern_key(sw),
+                                             self._on_operator_pattern))
         z.enter_context(s.declare_subscriber(keys.brain_key(sw), self._on_brain))
         z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
         self.swaps.start()
@@ -271,14 +279,17 @@ class Robot:
     def _on_pattern(self, sample: zenoh.Sample) -> None:
         self._take_pattern(sample.payload.to_bytes())
 
+    def _on_operator_pattern(self, sample: zenoh.Sample) -> None:
+        self._take_pattern(sample.payload.to_bytes(), operator=True)
+
     def _on_pattern_reply(self, reply: zenoh.Reply) -> None:
         ok = reply.ok
         if ok is not None:
             self._take_pattern(ok.payload.to_bytes())
 
-    def _take_pattern(self, payload: bytes) -> None:
+    def _take_pattern(self, payload: bytes, operator: bool = False) -> None:
         try:
-            self.pattern.offer(decode_pattern(payload))
+            self.pattern.offer(decode_pattern(payload), operator)
         except (MessageError, PatternError) as e:  # sizes, values, then meaning
             self._drop("pattern", str(e))
         except Exception as e:  # whatever arrives, never a traceback on Zenoh's thread
@@ -357,11 +368,12 @@ class Robot:
         else:
             try:
                 i = step.ids.index(self.id)
-                if self._perception is None:
-                    d = self.controller.decide(i, step.positions, pattern, step.step)
-                else:
-                    plan, now, vel = self._perceive(step)
-                    d = self.controller.decide(i, plan, pattern, step.step, vel, now)
+                seen: tuple[Array, Array | None, Array | None] = (
+                    (step.positions, None, None) if self._perception is None
+                    else self._perceive(step))
+                d = self.controller.decide(i, seen[0], pattern, step.step, seen[2], seen[1])
+                if d.error == ERR_NONFINITE:
+                    d = self._nonfinite(step, pattern, d, seen)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -390,6 +402,30 @@ class Robot:
                                            None if vel is None else vel[0]))
         return self._perceived[1]
 
+    def _nonfinite(self, step: Step, pattern: Array, d: Decision,
+                   seen: tuple[Array, Array | None, Array | None]) -> Decision:
+        """A step whose brain output is not finite: counted, and decided by the fallback."""
+        self.stats.nonfinite()
+        if self.cfg.nonfinite_fallback == "hold":
+            return d
+        fb = self._fallback
+        if fb is None:
+            own = self.controller.brain
+            rule = own if own.brain_id.startswith(RULE_PREFIX) else load_brain(FALLBACK_RULE,
+                                                                                 self.world)
+            fb = self._fallback = Controller(
+                rule, self.world, self.controller.safety,
+                settle_for(self.cfg.conditions, self.cfg.estimator, self.world))
+        if self._fallback_step != step.step - 1:  # not the step after its last: no history
+            fb.reset()
+            self.log("warning", "fallback", f"{ERR_NONFINITE.split(':')[0]}: "
+                     f"deciding by {fb.brain.brain_id}", step=step.step)
+            self.stats.error(f"{ERR_NONFINITE.split(':')[0]}: decided by {fb.brain.brain_id}",
+                             count=False)
+        self._fallback_step = step.step
+        fd = fb.decide(step.ids.index(self.id), seen[0], pattern, step.step, seen[2], seen[1])
+        return d if fd.error else fd
+
     def _send(self, step: int, d: Decision) -> None:
         self._publish_cmd(step, d)
         t = self.stats.decided(step, d.decision_us, d.safety_changed)
@@ -411,6 +447,7 @@ class Robot:
 
     def _install(self, brain: Brain) -> None:
         self.controller.set_brain(brain)
+        self._fallback = None  # the fallback follows a new rule brain
         self.pattern.use_brain(brain)
 
     def _publish_cmd(self, step: int, d: Decision) -> None:

@@ -39,6 +39,7 @@ class RobotStats:
         self.errors = 0
         self.interventions = 0
         self.steps = 0
+        self.nonfinite_fallbacks = 0
         self.last_error = ""
         self.last_step = 0
         self._latency_us: list[float] = []
@@ -55,6 +56,11 @@ class RobotStats:
             if count:
                 self.errors += 1
             self.last_error = text
+
+    def nonfinite(self) -> None:
+        """The brain's output was not finite; the fallback decided this step."""
+        with self._lock:
+            self.nonfinite_fallbacks += 1
 
     def decided(self, step: int, latency_us: float, safety_changed: bool) -> float:
         """One decision was sent; returns its time (monotonic s)."""
@@ -81,6 +87,7 @@ class RobotStats:
             gaps = sorted(b - a for a, b in itertools.pairwise(self._decided_at))
             dropped, errors, interventions = self.dropped, self.errors, self.interventions
             last_error, step = self.last_error, self.last_step
+            nonfinite = self.nonfinite_fallbacks
         jitter_ms = (percentile(gaps, 0.99) - percentile(gaps, 0.5)) * 1000.0 if gaps else 0.0
         st = Status(
             robot_id=robot_id,
@@ -94,6 +101,7 @@ class RobotStats:
             safety_interventions=interventions,
             last_error=one_line(last_error),
             uptime_s=time.monotonic() - self.t_start,
+            nonfinite_fallbacks=nonfinite,
         )
         if reply is None:
             return st

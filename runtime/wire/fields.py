@@ -263,6 +263,7 @@ STATUS: Final = FieldTable("status", "RobotStatus", (
     Field("swap_accepted", "bool", 13),
     Field("swap_reason", "str", 14, max_bytes=_TEXT),
     Field("old_brain_id", "str", 15, max_bytes=_TEXT, max_chars=MAX_BRAIN_ID_CHARS),
+    Field("nonfinite_fallbacks", "u64", 16),
 ))
 """Robot -> anyone: a robot's health (:class:`runtime.wire.messages.Status`), the keys of its
 JSON object in this order; the whole payload at most :data:`MAX_STATUS_BYTES`."""

@@ -6,7 +6,8 @@ Layout (``<swarm>`` is one name of ``[A-Za-z0-9_-]+``, ``<id>`` a robot id >= 0)
     patternrl/<swarm>/poses               world -> robots    every live robot's pose of a step
     patternrl/<swarm>/robot/<id>/cmd      robot -> world     commanded velocity, step, brain id
     patternrl/<swarm>/robot/<id>/status   robot -> anyone    brain id, latency, errors, swaps
-    patternrl/<swarm>/pattern             operator/world -> all   target pattern, version
+    patternrl/<swarm>/pattern             world -> all       target pattern, version (phases)
+    patternrl/<swarm>/operator/pattern    operator -> all    a target between the world's
     patternrl/<swarm>/brain               operator -> robots  a new brain to swap in
     patternrl/<swarm>/alive/<id>          liveliness token; the world uses id "world"
 
@@ -31,14 +32,15 @@ PATTERN: Final = "pattern"
 POSES: Final = "poses"
 BRAIN: Final = "brain"
 ALIVE: Final = "alive"
-KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES)
+OPERATOR_PATTERN: Final = "operator_pattern"
+KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES, OPERATOR_PATTERN)
 """Every kind of key, as :attr:`Key.kind` names it."""
 
 _SWARM_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ALIVE_ID_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ANY_KEY_RE: Final = re.compile(
     r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status)"
-    r"|(pattern|brain|poses)|alive/([A-Za-z0-9_-]+))"
+    r"|(pattern|brain|poses|operator/pattern)|alive/([A-Za-z0-9_-]+))"
 )
 _ROBOT_ID_RE: Final = re.compile(r"0|[1-9][0-9]*")
 
@@ -111,6 +113,12 @@ def pattern_key(swarm: str) -> str:
     return f"{PREFIX}/{validate_swarm(swarm)}/pattern"
 
 
+def operator_pattern_key(swarm: str) -> str:
+    """A target pattern of an operator's, between the world's phases (versions: see
+    :mod:`runtime.decision.team_pattern`)."""
+    return f"{PREFIX}/{validate_swarm(swarm)}/operator/pattern"
+
+
 def brain_key(swarm: str) -> str:
     """New brains for robots to swap in."""
     return f"{PREFIX}/{validate_swarm(swarm)}/brain"
@@ -169,7 +177,7 @@ def parse_key(key: str) -> Key | None:
     if channel is not None:
         return Key(swarm, channel, int(rid))
     if shared is not None:
-        return Key(swarm, shared, None)
+        return Key(swarm, OPERATOR_PATTERN if shared == "operator/pattern" else shared, None)
     robot = int(alive) if _ROBOT_ID_RE.fullmatch(alive) else None
     return Key(swarm, ALIVE, robot, alive)
 
@@ -186,6 +194,8 @@ def with_swarm(key: str, swarm: str) -> str | None:
         return pattern_key(swarm)
     if k.kind == BRAIN:
         return brain_key(swarm)
+    if k.kind == OPERATOR_PATTERN:
+        return operator_pattern_key(swarm)
     if k.kind == POSES:
         return poses_key(swarm)
     assert k.alive_id is not None

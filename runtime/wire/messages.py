@@ -318,8 +318,13 @@ class Status:
     swap_accepted: bool = False
     swap_reason: str = ""
     old_brain_id: str = ""
+    nonfinite_fallbacks: int = 0
+    """Steps whose brain output was not finite, decided by the robot's fallback instead
+    (``patternrl robot --nonfinite-fallback``); a status without the key (older robots) reads 0."""
 
 
+_STATUS_OPTIONAL: Final = frozenset({"nonfinite_fallbacks"})
+"""Status keys that may be missing (added later; their default then)."""
 _STATUS_FIELDS: Final[dict[str, Field]] = {f.name: f for f in STATUS.fields}
 assert tuple(_STATUS_FIELDS) == tuple(f.name for f in fields(Status))
 
@@ -366,13 +371,14 @@ def decode_status(payload: Buffer) -> Status:
         raise MessageError(f"status is {len(view)} bytes, at most {MAX_STATUS_BYTES}")
     text = read_text("status", "body", view[2:])
     body = json_object("status", text)
-    missing = [k for k in _STATUS_FIELDS if k not in body]
+    missing = [k for k in _STATUS_FIELDS if k not in body and k not in _STATUS_OPTIONAL]
     if missing:
         raise MessageError(f"status JSON lacks {', '.join(missing)}")
     extra = sorted(k for k in body if k not in _STATUS_FIELDS)
     if extra:
         raise MessageError(f"status JSON has unknown keys {', '.join(map(repr, extra))}")
-    return Status(**{name: _status_field(name, body[name]) for name in _STATUS_FIELDS})  # type: ignore[arg-type]
+    return Status(**{name: _status_field(name, body[name])  # type: ignore[arg-type]
+                     for name in _STATUS_FIELDS if name in body})
 
 
 # -- Pattern --------------------------------------------------------------------------------

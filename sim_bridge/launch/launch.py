@@ -410,6 +410,7 @@ def run(args: argparse.Namespace) -> int:
         hub = "router" if router is not None else "world, peers"
         say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
             f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
+        say(f"reach this swarm (patternrl record, swap) with: {creds.tool_flags(swarm, port)}")
         res: RunResult | None = None
         try:
             world.open()  # listening before the robots come: their first status says their brain

@@ -35,6 +35,11 @@ class RunKeys:
     def scheme(self) -> str:
         return "tcp" if self.dir is None else "tls"
 
+    def tool_flags(self, swarm: str, port: int) -> str:
+        """The flags that reach this run from ``patternrl record`` or ``swap``, ready to paste."""
+        who = "--insecure" if self.dir is None else f"--tls-dir {self.dir}"
+        return f"--swarm {swarm} --zenoh-port {port} {who}"
+
     def world_args(self, args: argparse.Namespace) -> argparse.Namespace:
         """The launcher's options with the world's identity in them."""
         out = argparse.Namespace(**vars(args))

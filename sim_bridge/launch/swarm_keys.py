@@ -12,8 +12,10 @@ writes (private keys mode 0600, directories 0700)::
 
 Each identity directory is self-contained (see :mod:`runtime.net.identity`): copy
 ``DIR/robot-3`` to robot 3's host and nothing else. Certificates are ECDSA
-P-256, valid ``--days`` days; the common name is the identity's name. The
-access rules name every robot, so a swarm that grows needs new keys.
+P-256, valid ``--days`` days; the common name is the identity's name. The world's,
+operator's and router's access rules name every robot (so a swarm that grows needs
+new keys); a robot's name the roles only, so time and size grow linearly with the
+team, up to :data:`MAX_ROBOTS` robots (more is refused at once).
 """
 
 from __future__ import annotations
@@ -35,9 +37,13 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 from runtime.errors import InputError
 from runtime.net import identity as idn
 from runtime.wire import keys
+from runtime.wire.fields import MAX_PATTERN_POINTS
 
 DEFAULT_DAYS = 3650
-MAX_ROBOTS = 10_000
+MAX_ROBOTS = MAX_PATTERN_POINTS
+"""The largest team: the most robots a pattern message carries points for (4096). Keys for
+it take ~13 s; the world's, operator's and router's rules grow linearly (2.8 MB at 4096),
+a robot's stay ~3 KB (the rules: :func:`runtime.net.identity.access_control`)."""
 
 
 @dataclass(frozen=True)
@@ -128,7 +134,8 @@ def create_swarm_keys(out: Path, swarm: str, robots: int, days: int = DEFAULT_DA
     except ValueError as e:
         raise InputError(str(e)) from None
     if not 1 <= robots <= MAX_ROBOTS:
-        raise InputError(f"--robots must be in 1..{MAX_ROBOTS}, got {robots}")
+        raise InputError(f"--robots must be in 1..{MAX_ROBOTS} (the largest team a pattern "
+                         f"message carries), got {robots}")
     if not 1 <= days <= 100 * 366:
         raise InputError(f"--days must be in 1..36600, got {days}")
     out = Path(out)

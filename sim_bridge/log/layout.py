@@ -10,7 +10,8 @@ topic                       schema                           what
 ``K/robot/<id>/pose``       ``patternrl.RobotPose``          world -> robot
 ``K/robot/<id>/cmd``        ``patternrl.RobotCommand``       robot -> world
 ``K/robot/<id>/status``     ``patternrl.RobotStatus``        robot health
-``K/pattern``               ``patternrl.Pattern``            target pattern
+``K/pattern``               ``patternrl.Pattern``            target pattern (the world's)
+``K/operator/pattern``      ``patternrl.Pattern``            an operator's target
 ``K/brain``                 ``patternrl.BrainSwap``          brain swaps
 ``/robot/<id>/pose``        ``foxglove.PoseInFrame``         frame ``world``
 ``/tf``                     ``foxglove.FrameTransforms``     ``world`` -> ``robot_<id>``
@@ -115,6 +116,7 @@ PB_SCHEMAS: Final = {
     keys.CMD: pb.ROBOT_COMMAND,
     keys.STATUS: pb.ROBOT_STATUS,
     keys.PATTERN: pb.PATTERN,
+    keys.OPERATOR_PATTERN: pb.PATTERN,
     keys.BRAIN: pb.BRAIN_SWAP,
 }
 """Key kind -> protobuf schema of the channel of keys of that kind."""
@@ -124,6 +126,7 @@ WIRE_SCHEMAS: Final = {
     keys.CMD: "patternrl.Command",
     keys.STATUS: "patternrl.Status",
     keys.PATTERN: "patternrl.Pattern",
+    keys.OPERATOR_PATTERN: "patternrl.Pattern",
     keys.BRAIN: "patternrl.Brain",
 }
 """Key kind -> schema name of the wire message on keys of that kind (old logs)."""

@@ -40,7 +40,7 @@ from sim_bridge.log import schemas as pb
 from sim_bridge.log.file import LogError, Recovery, iter_messages
 from sim_bridge.log.layout import WIRE_ENCODING, channel_kind
 
-KINDS = (keys.POSE, keys.CMD, keys.STATUS, keys.PATTERN, keys.BRAIN)
+KINDS = (keys.POSE, keys.CMD, keys.STATUS, keys.PATTERN, keys.OPERATOR_PATTERN, keys.BRAIN)
 
 
 @dataclass

@@ -8,12 +8,21 @@ the same way (phases from the pattern messages on the wire; a robot's arrival or
 departure as ``join``/``leave`` events). It works for a simulated swarm and for
 real robots alike; ``log_time`` is the wall clock as the samples arrived.
 
+Each key may cost the log only so much per second (:mod:`sim_bridge.log.budget`):
+a flood is dropped, counted (the summary line, the ``run_end`` event) and said once
+per key (an ``over_budget`` event).
+
 The output is refused if it exists (``--force`` overwrites). Ctrl-C (SIGINT) or
 SIGTERM finishes the file (summary and index); so does ``--duration-s``.
 Zenoh: the standard options (:func:`runtime.net.session.add_zenoh_arguments`);
 by default the recorder connects to the swarm's world on this machine.
 
-Exit codes: 0 when the file is finished; 2 on bad input or when Zenoh cannot open.
+A recording that heard nothing of the swarm (no sample on its keys, e.g. the
+swarm runs on another port: ``patternrl launch`` prints the flags that reach it)
+is not kept: one line says so, the file is removed and the exit code is 1.
+
+Exit codes: 0 when the file is finished; 1 when nothing was heard (no file); 2 on bad
+input or when Zenoh cannot open.
 """
 
 from __future__ import annotations
@@ -30,8 +39,14 @@ from types import FrameType
 import zenoh
 
 from runtime.errors import InputError
-from runtime.net.session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
+from runtime.net.session import (
+    ZenohSetupError,
+    add_zenoh_arguments,
+    open_session_from_args,
+    world_endpoint,
+)
 from runtime.wire import keys
+from sim_bridge.log.budget import Budget, KeyBudget
 from sim_bridge.log.recorder import Recorder, check_output
 
 
@@ -54,6 +69,8 @@ class SwarmRecorder:
         self.rec = rec
         self.samples = 0
         self.last_step = 0
+        self.budget = KeyBudget(self._over_budget)
+        """What each key may cost the log per second (:mod:`sim_bridge.log.budget`)."""
         self._lock = threading.Lock()
         self._stack = ExitStack()
 
@@ -69,11 +86,18 @@ class SwarmRecorder:
     def __exit__(self, *exc: object) -> None:
         self._stack.close()
         self.rec.event("run_end", self.last_step, 0.0, outcome="recorded",
-                       steps=self.last_step, samples=self.samples)
+                       steps=self.last_step, samples=self.samples,
+                       over_budget=self.budget.dropped)
+
+    def _over_budget(self, key: str, budget: Budget) -> None:
+        self.rec.event("over_budget", self.last_step, 0.0, key=key,
+                       messages_per_s=budget.messages, bytes_per_s=budget.bytes)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
+        if not self.budget.allow(key, len(payload)):  # a flood: dropped, counted
+            return
         k = keys.parse_key(key)
         if k is not None and k.kind == keys.POSE and len(payload) >= 14:
             step = int.from_bytes(payload[6:14], "little")  # the pose's step (wire layout)
@@ -130,6 +154,24 @@ def run(args: argparse.Namespace) -> int:
         session.close()  # type: ignore[no-untyped-call]
         for s, h in old.items():
             signal.signal(s, h)
+    if sr.samples == 0:  # an empty log would read as a swarm that did nothing
+        Path(args.out).unlink(missing_ok=True)
+        print(f"patternrl record: error: heard nothing from swarm {args.swarm} at "
+              f"{_where(args)}: is it running there? (patternrl launch prints the flags that "
+              f"reach its swarm); no log written", file=sys.stderr)
+        return 1
+    over = (f", {sr.budget.dropped} dropped over their key's budget"
+            if sr.budget.dropped else "")
     print(f"patternrl record: {sr.samples} samples, {rec.messages_written} messages, "
-          f"last step {sr.last_step}: {args.out}", file=sys.stderr)
+          f"last step {sr.last_step}{over}: {args.out}", file=sys.stderr)
     return 0
+
+
+def _where(args: argparse.Namespace) -> str:
+    """Where the recorder looked for the swarm, in the user's terms."""
+    if args.connect:
+        return ", ".join(args.connect)
+    try:
+        return world_endpoint(args.swarm, args.zenoh_port).split("/", 1)[1]
+    except ZenohSetupError:
+        return "its default port"

@@ -326,7 +326,7 @@ class Recorder:
         if kind == keys.STATUS:
             s = decode_status(payload)
             return pb.status_pb(s), s.step
-        if kind == keys.PATTERN:
+        if kind in (keys.PATTERN, keys.OPERATOR_PATTERN):
             return pb.pattern_pb(decode_pattern(payload)), None
         if kind == keys.BRAIN:
             return pb.brain_pb(decode_brain(payload)), None

@@ -38,6 +38,7 @@ from runtime.decision.patterns import PatternError, make_pattern
 from runtime.errors import InputError
 from runtime.net.session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
 from runtime.wire import keys
+from runtime.wire.fields import MAX_PATTERN_POINTS as MAX_TEAM
 from runtime.world_config import DEFAULT_WORLD
 from sim_bridge.live.foxglove_live import DEFAULT_ADDRESS, FoxgloveLive, parse_address
 from sim_bridge.log.recorder import Recorder, check_output
@@ -100,8 +101,9 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
         keys.validate_swarm(args.swarm)
     except ValueError as e:
         raise InputError(str(e)) from None
-    if args.robots < 2:
-        raise InputError(f"--robots must be >= 2, got {args.robots}")
+    if not 2 <= args.robots <= MAX_TEAM:
+        raise InputError(f"--robots must be in 2..{MAX_TEAM} (the largest team a pattern "
+                         f"message carries), got {args.robots}")
     patterns = [p.strip() for p in str(args.patterns).split(",") if p.strip()]
     if not patterns:
         raise InputError("--patterns names no pattern")

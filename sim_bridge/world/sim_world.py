@@ -215,6 +215,7 @@ class SimWorld:
             self.journal.event(
                 "run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),
                 formed=[p.formed for p in phases], malformed=self.malformed,
+                over_budget=self.link.budget.dropped,
                 contacts_total=self.physics.contacts_total)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
@@ -363,7 +364,7 @@ class SimWorld:
         """A new version of the pattern at the live team size: published and logged."""
         n = len(self.physics.ids)
         pts = make_pattern(name, n, self.w)
-        self.version += 1
+        self.version = self.link.next_pattern_version()  # above any operator pattern held
         msg = PatternMsg(self.version, pattern_label(name), pts, self.w.formed_tol_m)
         self.link.put_pattern(encode_pattern(msg))
         self.journal.event("pattern", version=self.version, name=msg.name, n=n, reason=reason,

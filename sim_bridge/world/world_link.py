@@ -51,6 +51,7 @@ from contextlib import ExitStack
 import numpy as np
 import zenoh
 
+from runtime.decision.team_pattern import MAX_VERSION_STEP
 from runtime.net.session import direct
 from runtime.types import Array
 from runtime.wire import keys
@@ -60,10 +61,12 @@ from runtime.wire.messages import (
     Pose,
     PoseBatch,
     decode_command,
+    decode_pattern,
     decode_status,
     encode_pose,
     encode_poses,
 )
+from sim_bridge.log.budget import Budget, KeyBudget
 from sim_bridge.log.recorder import Recorder
 from sim_bridge.world.membership import Roster
 
@@ -90,6 +93,8 @@ class WorldLink:
         self.rec = recorder
         self._event = event
         self.malformed = 0
+        self.budget = KeyBudget(self._over_budget)
+        """What each key may cost per second (:mod:`sim_bridge.log.budget`); its drops."""
         self.latencies_ms: list[float] = []
         """Pose-to-command latency of every command that made its step."""
         self.decision_us: list[float] = []
@@ -114,6 +119,8 @@ class WorldLink:
         self._listened: set[int] = set()  # robots whose pose key someone subscribes to
         self._prev_pos: dict[int, tuple[float, float]] = {}
         self._pattern_payload = b""
+        self._own_version = 0  # the world's last pattern version
+        self._operator_top = 0  # the highest operator pattern version since (0: none)
         self.pattern_sent_s = 0.0
         """``time.monotonic()`` of the last pattern put."""
 
@@ -183,9 +190,14 @@ class WorldLink:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
+        if not self.budget.allow(key, len(payload)):  # a flood: not handled, not logged
+            return
         if self.rec is not None:
             self.rec.write_wire(key, payload)
         k = keys.parse_key(key)
+        if k is not None and k.kind == keys.OPERATOR_PATTERN:
+            self._on_operator_pattern(key, payload)
+            return
         if k is None or k.robot_id is None:
             return
         if k.kind == keys.CMD:
@@ -202,6 +214,10 @@ class WorldLink:
             self.roster.heard(k.robot_id)
             with self.cond:
                 self._brain_of[st.robot_id] = st.brain_id
+
+    def _over_budget(self, key: str, budget: Budget) -> None:
+        self._event("over_budget", key=key, messages_per_s=budget.messages,
+                    bytes_per_s=budget.bytes)
 
     def _malformed(self, key: str, why: str) -> None:
         self.malformed += 1
@@ -249,6 +265,25 @@ class WorldLink:
             self._brain_of[rid] = brain_id
 
     # ------------------------------------------------------------ pattern
+
+    def _on_operator_pattern(self, key: str, payload: bytes) -> None:
+        try:
+            v = decode_pattern(payload).version
+        except MessageError as e:
+            self._malformed(key, str(e))
+            return
+        with self.cond:  # what robots may take: at most MAX_VERSION_STEP past the world's
+            if self._own_version < v < self._own_version + MAX_VERSION_STEP:
+                self._operator_top = max(self._operator_top, v)
+
+    def next_pattern_version(self) -> int:
+        """The version of the world's next pattern: above its last and above every operator
+        pattern robots may hold, at most ``MAX_VERSION_STEP`` past its last (why:
+        :mod:`runtime.decision.team_pattern`)."""
+        with self.cond:
+            self._own_version = max(self._own_version, self._operator_top) + 1
+            self._operator_top = 0
+            return self._own_version
 
     def put_pattern(self, payload: bytes | None = None) -> None:
         """Publish the pattern (a new one, or the current one again) and log it."""

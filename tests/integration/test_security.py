@@ -88,6 +88,23 @@ def test_robot_1s_certificate_publishes_robot_1s_keys_only(
             t.undeclare()  # type: ignore[attr-defined]
 
 
+def test_the_operator_puts_its_patterns_on_its_own_key_never_on_the_worlds(
+        tls_world: tuple[zenoh.Session, Seen, str], swarm_keys: Path) -> None:
+    """Only the world speaks on the pattern key: that is what keeps an operator's pattern
+    from locking out the world's next phase (runtime/decision/team_pattern.py)."""
+    _, seen, ep = tls_world
+    with session(swarm_keys, "operator", [ep], ["tls/127.0.0.1:0"]) as op:
+        mine = keys.operator_pattern_key(SWARM)
+
+        def heard(payload: bytes) -> bool:
+            op.put(keys.pattern_key(SWARM), payload)  # refused, whenever it is put
+            op.put(mine, payload)
+            return seen.has(mine, payload)
+
+        wait_for(lambda: heard(b"operator-pattern"), 30, "the operator's pattern", poll=0.05)
+        assert keys.pattern_key(SWARM) not in seen.keys(), seen.keys()
+
+
 def test_on_open_tcp_the_same_forgeries_arrive() -> None:
     ep = f"tcp/127.0.0.1:{free_port()}"
     with session(None, None, [], [ep]) as w, session(None, None, [ep], []) as attacker:

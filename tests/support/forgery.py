@@ -15,11 +15,11 @@ def forged_command(robot_id: int, step: int, brain: str = "forged") -> bytes:
 
 
 def forged_keys(swarm: str) -> tuple[str, ...]:
-    """What robot 1 has no right to publish: robot 2's keys, the brain and the pattern."""
+    """What robot 1 has no right to publish: robot 2's keys, the brain and the patterns."""
     from runtime.wire import keys
 
     return (keys.cmd_key(swarm, 2), keys.status_key(swarm, 2), keys.pose_key(swarm, 2),
-            keys.brain_key(swarm), keys.pattern_key(swarm))
+            keys.brain_key(swarm), keys.pattern_key(swarm), keys.operator_pattern_key(swarm))
 
 
 def forge_and_fence(attacker: Any, seen: Seen, swarm: str, token_ids: tuple[int, ...]

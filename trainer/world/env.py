@@ -28,6 +28,8 @@ Render               ``render_mode="rgb_array"``: ``render()`` returns the scene
                      slot, the pattern's slots as grey crosses, the arena
                      dotted; ``"human"``: the same in a matplotlib window,
                      redrawn every step (needs a display); ``None``: nothing
+State                ``state()``: every robot's position (m), flattened;
+                     ``state_space`` ``Box(-inf, inf, (2N,), float32)``
 Metadata             ``name`` pattern_formation_v0, ``render_fps`` 10 (1 / dt)
 ==================== ===========================================================
 
@@ -49,7 +51,7 @@ render_mode          ``None`` (default), ``"rgb_array"`` or ``"human"``
 
 Example: a random policy (any MARL library that speaks PettingZoo's parallel API
 takes ``env`` as it is; ``pettingzoo.utils.parallel_to_aec(env)`` gives the AEC
-form, SuperSuit's wrappers vectorise it)::
+form)::
 
     env = parallel_env(pattern="circle", n_robots=6, seed=0, render_mode="rgb_array")
     obs, infos = env.reset(seed=0)
@@ -158,6 +160,7 @@ class PatternFormationEnv(ParallelEnv[str, NDArray[np.float32], NDArray[np.float
             for a in self.possible_agents
         }
         self._act_spaces = {a: spaces.Box(-v, v, (2,), np.float32) for a in self.possible_agents}
+        self.state_space = spaces.Box(-np.inf, np.inf, (2 * n_robots,), np.float32)
         self._fresh = True  # the world holds a new episode nobody has seen yet
         self._final_positions: NDArray[np.float64] | None = None  # of an ended episode
 

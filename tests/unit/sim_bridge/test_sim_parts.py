@@ -126,3 +126,47 @@ def test_world_link_exchanges_a_step_with_a_robot() -> None:
     finally:
         robot.close()  # type: ignore[no-untyped-call]
         world.close()  # type: ignore[no-untyped-call]
+
+
+def test_the_worlds_next_pattern_is_numbered_above_an_operators() -> None:
+    """An operator's pattern at the edge of what robots take: the world's next phase is
+    numbered above it (so it wins at every robot), never more than MAX_VERSION_STEP past
+    the world's last (so every robot takes it); versions further out are not followed."""
+    from runtime.decision.team_pattern import MAX_VERSION_STEP
+    from runtime.wire.messages import PatternMsg, encode_pattern
+
+    swarm, port = "unit-numbering", free_port()
+    world = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+    operator = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"], listen=[])
+    link = WorldLink(world, swarm, lockstep=True, recorder=None, event=lambda kind, **f: None)
+    key = keys.operator_pattern_key(swarm)
+    circle = make_pattern("circle", 4)
+
+    def heard(v: int) -> None:
+        """Put ``v`` and then a malformed marker: once the world counted the marker, ``v``
+        has arrived (one publisher's samples arrive in order)."""
+        want = link.malformed + 1
+        pub.put(encode_pattern(PatternMsg(v, "circle", circle, W.formed_tol_m)))
+        pub.put(b"\x00marker")
+        deadline = time.monotonic() + 20.0
+        while link.malformed < want:
+            assert time.monotonic() < deadline, "the operator's puts never reached the world"
+            time.sleep(0.01)
+
+    pub = operator.declare_publisher(key)
+    try:
+        with link:
+            deadline = time.monotonic() + 20.0  # the world's subscription reached the operator
+            while not pub.matching_status.matching:
+                assert time.monotonic() < deadline, "the world never subscribed"
+                time.sleep(0.01)
+            assert link.next_pattern_version() == 1
+            heard(1 + MAX_VERSION_STEP - 1)  # the farthest an operator's is followed
+            assert link.next_pattern_version() == 1 + MAX_VERSION_STEP
+            heard(5_000_000)  # robots refuse it: the world does not follow it either
+            heard(3)  # older than the world's: nothing
+            assert link.next_pattern_version() == 2 + MAX_VERSION_STEP
+    finally:
+        pub.undeclare()  # type: ignore[no-untyped-call]
+        operator.close()  # type: ignore[no-untyped-call]
+        world.close()  # type: ignore[no-untyped-call]

@@ -104,3 +104,40 @@ def test_a_message_the_team_cannot_form_is_refused_and_the_old_one_kept() -> Non
     with pytest.raises(PatternError, match="closer than 2R"):
         policy.offer(msg(2, "two", np.array([[0.0, 0.0], [0.1, 0.0]])))
     np.testing.assert_allclose(policy.for_team(6)[0], make_pattern("circle", 6))
+
+
+def test_no_operator_pattern_locks_out_the_worlds_next_phase() -> None:
+    """An operator pattern at the edge of the allowance, then any number of others in any
+    order: every next world pattern is still taken."""
+    policy = TeamPattern(None)
+    circle, cross, line = (make_pattern(p, 4) for p in ("circle", "cross", "line"))
+    v = 7
+    policy.offer(msg(v, "circle", circle))  # the world's phase
+    policy.offer(msg(v + MAX_VERSION_STEP, "cross", cross), operator=True)  # taken
+    np.testing.assert_allclose(policy.for_team(4)[0], cross)
+    with pytest.raises(PatternError, match="past the world's"):  # no further than S past W
+        policy.offer(msg(v + MAX_VERSION_STEP + 1, "line", line), operator=True)
+    policy.offer(msg(v + 1, "line", line))  # the world's next phase, below the operator's
+    np.testing.assert_allclose(policy.for_team(4)[0], line)
+    with pytest.raises(PatternError, match="not newer"):  # a late operator pattern: older
+        policy.offer(msg(v + 1, "cross", cross), operator=True)
+    # an operator walking the versions up as far as it may, many times: the world's
+    # next (at most S past its last) is still taken each time
+    rng = np.random.default_rng(0)
+    world_v = v + 1
+    for _ in range(50):
+        for op_v in rng.integers(world_v - 5, world_v + MAX_VERSION_STEP + 5, 8).tolist():
+            try:
+                policy.offer(msg(int(op_v), "cross", cross), operator=True)
+            except PatternError:
+                pass
+        world_v += int(rng.integers(1, MAX_VERSION_STEP + 1))
+        policy.offer(msg(world_v, "circle", circle))
+        np.testing.assert_allclose(policy.for_team(4)[0], circle)
+
+
+def test_operator_patterns_do_not_move_the_worlds_version() -> None:
+    policy = TeamPattern(None)
+    policy.offer(msg(1, "circle", make_pattern("circle", 4)), operator=True)  # before the world
+    policy.offer(msg(1, "cross", make_pattern("cross", 4)))  # the world's 1 is not a republish
+    np.testing.assert_allclose(policy.for_team(4)[0], make_pattern("cross", 4))

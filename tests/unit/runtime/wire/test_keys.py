@@ -45,6 +45,7 @@ def test_every_kind_is_parsed() -> None:
         keys.brain_key("s"),
         keys.alive_key("s", 1),
         keys.poses_key("s"),
+        keys.operator_pattern_key("s"),
     ]
     parsed = [keys.parse_key(k) for k in built]
     assert [k.kind for k in parsed if k is not None] == list(keys.KINDS)
@@ -60,6 +61,7 @@ def test_every_kind_is_parsed() -> None:
         keys.brain_key("a"),
         keys.alive_key("a", 5),
         keys.alive_key("a", keys.WORLD_ID),
+        keys.operator_pattern_key("a"),
     ],
 )
 def test_with_swarm_moves_every_key_to_the_other_swarm(key: str) -> None:

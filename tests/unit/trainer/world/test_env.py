@@ -174,3 +174,31 @@ def test_human_mode_draws_every_step_and_returns_none(monkeypatch) -> None:
         assert not plt.fignum_exists(fig.number)
     finally:
         plt.interactive(was_interactive)
+
+
+def test_state_has_its_space_for_centralised_critics() -> None:
+    env = parallel_env(n_robots=4, step_limit=3)
+    env.reset(seed=2)
+    assert env.state_space is not None
+    assert env.state_space.shape == (8,) and env.state_space.dtype == np.float32
+    assert env.state_space.contains(env.state())
+    while env.agents:  # and where the episode ended
+        env.step({a: env.action_space(a).sample() for a in env.agents})
+    assert env.state_space.contains(env.state())
+
+
+def test_the_readmes_pettingzoo_example_runs_as_written() -> None:
+    """The README's random-policy example, exactly as the README shows it."""
+    from support import ROOT
+
+    readme = (ROOT / "README.md").read_text()
+    start = readme.index("```python\nfrom trainer.world.env import parallel_env")
+    block = readme[start + len("```python\n"):readme.index("```", start + 10)]
+    assert "env.step(actions)" in block and "render_mode" in block
+    code = compile(block, "README.md", "exec")
+    scope: dict[str, object] = {}
+    exec(code, scope)  # the README's own example
+    frames = scope["frames"]
+    assert isinstance(frames, list) and len(frames) >= 2
+    assert frames[0].shape == (480, 480, 3)
+    assert not scope["env"].agents  # the episode ended
