@@ -46,6 +46,8 @@ TWIST: Final = "geometry_msgs/msg/Twist"
 POSE_ARRAY: Final = "geometry_msgs/msg/PoseArray"
 MARKER_ARRAY: Final = "visualization_msgs/msg/MarkerArray"
 TYPES: Final = (POSE_STAMPED, TWIST, POSE_ARRAY, MARKER_ARRAY)
+SPHERE_LIST: Final = 7  # visualization_msgs/msg/Marker's constants
+ADD: Final = 0
 
 
 class _Msgs:
@@ -90,8 +92,8 @@ class _Msgs:
         for m in markers_of(xy, pattern, radius):
             r, g, b, a = m.rgba
             out.append(self.Marker(
-                header=self.header(ns), ns=m.ns, id=m.id, type=self.Marker.SPHERE_LIST,
-                action=self.Marker.ADD, pose=self.pose(0.0, 0.0),
+                header=self.header(ns), ns=m.ns, id=m.id, type=SPHERE_LIST,
+                action=ADD, pose=self.pose(0.0, 0.0),
                 scale=self.Vector3(x=m.diameter_m, y=m.diameter_m, z=m.diameter_m),
                 color=self.ColorRGBA(r=r, g=g, b=b, a=a),
                 lifetime=self.Duration(sec=0, nanosec=0), frame_locked=False,
