@@ -10,7 +10,8 @@ identity        may publish (Zenoh ``put`` / liveliness token / reply)
                 ``pattern`` (and replies to pattern queries), the ``brain`` of
                 each pattern between phases, liveliness ``alive/world``
 ``robot-<i>``   its own ``robot/<i>/cmd`` and ``robot/<i>/status``, liveliness
-                ``alive/<i>``
+                ``alive/<i>``, and its own ``robot/<i>/pose`` (a robot that knows
+                where it is: ``robot --ros2``, a real swarm without a world)
 ``operator``    ``brain`` and ``pattern``
 ``router``      anything of the swarm: a Zenoh router relays what it already
                 checked when it received it
@@ -165,8 +166,9 @@ def access_control(swarm: str, n_robots: int) -> dict[str, Any]:
     ]
     for i in range(n_robots):
         name = robot_identity(i)
-        rules.append(_rule(f"{name}-put", ["put"],
-                           [keys.cmd_key(swarm, i), keys.status_key(swarm, i)], ingress))
+        rules.append(_rule(f"{name}-put", ["put"], [keys.cmd_key(swarm, i),
+                                                   keys.status_key(swarm, i),
+                                                   keys.pose_key(swarm, i)], ingress))
         rules.append(_rule(f"{name}-alive", ["liveliness_token"], [keys.alive_key(swarm, i)],
                            ingress))
         subjects.append({"id": name, "cert_common_names": [name]})

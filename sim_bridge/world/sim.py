@@ -72,6 +72,10 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
     p.add_argument("--brain-kind", choices=("general", "paper"), default="general",
                    help="with a brains directory, which observation to prefer (default general)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--ros2", action="store_true",
+                   help="the robots as a ROS 2 fleet: /robot_<i>/odom out, /robot_<i>/cmd_vel "
+                        "(Twist) in, /swarm/poses and /swarm/markers for RViz; realtime "
+                        "(needs the ros2 extra; robots run with --ros2 robot_<i>)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -108,10 +112,16 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if getattr(args, "ros2", False):  # realtime: a ROS 2 base applies its newest Twist
+        args.mode = "realtime"
+        from runtime.ros2.environment import import_rclpy
+
+        import_rclpy()
     return SimConfig(
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
         step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
+        ros2=bool(getattr(args, "ros2", False)),
     )
 
 
