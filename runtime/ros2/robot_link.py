@@ -298,7 +298,12 @@ def open_robot_link(
     from runtime.wire.messages import Pose, encode_pose
 
     key = keys.pose_key(robot.cfg.swarm, robot.id)
-    pub = robot.session.declare_publisher(key, express=True)
+    import zenoh
+
+    # to the peers only: the robot takes its own pose directly (once, not twice)
+    pub = robot.session.declare_publisher(
+        key, express=True, allowed_destination=zenoh.Locality.REMOTE
+    )
     dt = float(robot.world.dt_s)
     rid = robot.id
 
