@@ -35,6 +35,7 @@ __all__ = ["MAX_COORD_M", "Ros2Link"]
 
 MAX_COORD_M: Final = 1e6  # as the robot's inbox: a pose farther away is malformed
 SPIN_S: Final = 0.05
+DAY_S: Final = 86_400.0
 HOLD_REPEAT_S: Final = 0.5
 """While it holds still, the link says so again (a zero ``Twist``) this often."""
 
@@ -293,7 +294,8 @@ def open_robot_link(
 ) -> Ros2Link:
     """The link of a robot process: each ROS 2 pose becomes this robot's :class:`Pose` on its
     Zenoh pose key (peers and the coordinator see it; the robot takes it at once), stamped with
-    the wall clock's step (``time / dt``: robots with synchronised clocks share steps)."""
+    the step of the UTC day's wall clock (time of day / dt: robots with synchronised clocks
+    share steps, and a day's steps stay within what a log reader takes as a run's)."""
     from runtime.wire import keys
     from runtime.wire.messages import Pose, encode_pose
 
@@ -309,7 +311,8 @@ def open_robot_link(
 
     def on_pose(x: float, y: float, vx: float, vy: float) -> None:
         t = time.time()
-        payload = encode_pose(Pose(rid, int(t / dt), t, x, y, vx, vy, max(1, team_size())))
+        step = int((t % DAY_S) / dt)
+        payload = encode_pose(Pose(rid, step, t, x, y, vx, vy, max(1, team_size())))
         robot.inbox.take(key, payload)
         pub.put(payload)
 

@@ -41,7 +41,7 @@ class StaticPeer:
     def _run(self) -> None:
         while not self.stop.wait(0.05):
             t = time.time()
-            pose = Pose(self.rid, int(t / W.dt_s), t, self.x, self.y, 0.0, 0.0, 2)
+            pose = Pose(self.rid, int((t % 86400) / W.dt_s), t, self.x, self.y, 0.0, 0.0, 2)
             self.pub.put(encode_pose(pose))
 
     def close(self) -> None:
