@@ -18,6 +18,10 @@ swap it into each robot that runs another one, through the runtime's swap
 mechanism (:func:`runtime.brain.swap.swap_brain`); every answer is logged. So paper
 brains, one per pattern, play a whole sequence.
 
+ROS 2 (``--ros2``, :mod:`sim_bridge.ros2.fleet`): the robots move as a ROS 2 fleet, each
+``robot_<i>`` publishing ``odom`` and taking ``cmd_vel`` Twists, in realtime; the robots run
+``patternrl robot --ros2 robot_<i>``.
+
 Exit codes: 0 when every pattern formed; 1 when one did not, or no robots came;
 2 on bad input; 130 when interrupted (the log is finished either way).
 """
