@@ -43,6 +43,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "sim_bridge.log.record",
         "record a running swarm (simulated or real) into an MCAP log",
     ),
+    "coordinate": (
+        "sim_bridge.launch.coordinator",
+        "a real swarm's coordinator: publish the patterns, judge formed, record",
+    ),
 }
 
 

@@ -21,7 +21,7 @@ fi
 if [ ! -f "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
     .venv/bin/python -m pip install --quiet --disable-pip-version-check \
-        -c constraints.txt -e ".[train,sim,foxglove,distributed,dev]"
+        -c constraints.txt -e ".[train,sim,foxglove,distributed,ros2,dev]"
     rm -f .venv/.installed-*
     touch "$stamp"
 fi

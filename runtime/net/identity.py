@@ -10,7 +10,8 @@ identity        may publish (Zenoh ``put`` / liveliness token / reply)
                 ``pattern`` (and replies to pattern queries), the ``brain`` of
                 each pattern between phases, liveliness ``alive/world``
 ``robot-<i>``   its own ``robot/<i>/cmd`` and ``robot/<i>/status``, liveliness
-                ``alive/<i>``
+                ``alive/<i>``, and its own ``robot/<i>/pose`` (a robot that knows
+                where it is: ``robot --ros2``, a real swarm without a world)
 ``operator``    ``brain`` and ``operator/pattern`` (a pattern between the world's phases:
                 only the world puts on ``pattern``, which keeps its phases from
                 being locked out, :mod:`runtime.decision.team_pattern`)
@@ -184,8 +185,9 @@ def access_control(swarm: str, n_robots: int, hears_robots: bool = True) -> dict
     ]
     for i in range(n_robots if hears_robots else 0):
         name = robot_identity(i)
-        rules.append(_rule(f"{name}-put", ["put"],
-                           [keys.cmd_key(swarm, i), keys.status_key(swarm, i)], ingress))
+        rules.append(_rule(f"{name}-put", ["put"], [keys.cmd_key(swarm, i),
+                                                   keys.status_key(swarm, i),
+                                                   keys.pose_key(swarm, i)], ingress))
         rules.append(_rule(f"{name}-alive", ["liveliness_token"], [keys.alive_key(swarm, i)],
                            ingress))
         subjects.append({"id": name, "cert_common_names": [name]})

@@ -12,6 +12,7 @@ from runtime.decision.patterns import PatternError, make_pattern
 from runtime.decision.safety import OrcaParams, uncertainty_params
 from runtime.errors import InputError
 from runtime.net.session import add_zenoh_arguments
+from runtime.ros2.options import Ros2Options, add_ros2_arguments, ros2_options_from_args
 from runtime.wire import keys
 from runtime.world_config import WorldConfig
 
@@ -51,6 +52,8 @@ class RobotConfig:
     """Seeds the simulated sensing (with the robot id)."""
     estimator: bool = False
     """Track peers (``runtime.decision.estimator``) and decide on the estimates."""
+    ros2: Ros2Options | None = None
+    """A ROS 2 robot: pose from a ROS 2 topic, command as a Twist (``--ros2``)."""
     debug_delay_ms: float = 0.0
     """Testing only: each command goes out after a random extra delay in [0, this] ms
     (seeded by the robot id), to check that late commands never make the swarm unsafe."""
@@ -68,7 +71,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--brain", required=True, help="a brain: path to .onnx (manifest beside it) or rule:assign"
     )
     parser.add_argument(
-        "--mode", choices=("lockstep", "realtime"), default="lockstep", help="(default lockstep)"
+        "--mode",
+        choices=("lockstep", "realtime"),
+        default=None,
+        help="(default lockstep; realtime with --ros2)",
     )
     parser.add_argument(
         "--rate-hz",
@@ -177,6 +183,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="keep the full horizon at the end of a plan too (default: a team on a "
         "synchronised plan filters with the plan's time left when it is shorter)",
     )
+    add_ros2_arguments(parser)
     add_zenoh_arguments(parser)
     lg = parser.add_argument_group("logging")
     lg.add_argument("--json-logs", action="store_true", help="one JSON object per log line")
@@ -238,10 +245,11 @@ def config_from_args(
             landing=not args.orca_no_landing,
         )
     )
+    ros2 = ros2_options_from_args(args)
     cfg = RobotConfig(
         swarm=args.swarm,
         robot_id=args.id,
-        mode=args.mode,
+        mode=args.mode or ("realtime" if ros2 is not None else "lockstep"),
         rate_hz=rate,
         lockstep_deadline_s=args.lockstep_deadline_s,
         watchdog_s=args.watchdog_s,
@@ -256,6 +264,7 @@ def config_from_args(
         conditions=conditions,
         estimator=args.estimator,
         sensing_seed=args.sensing_seed,
+        ros2=ros2,
     )
     if safety is not None:
         safety = uncertainty_params(safety, conditions, world)

@@ -74,9 +74,12 @@ class PoseInbox:
         log: Log,
         drop: Callable[[str, str], None],
         on_restart: Callable[[], None] | None = None,
+        decide_on_own_pose: bool = False,
     ) -> None:
         """``drop(what, why)`` counts a malformed pose; ``on_restart()`` runs (on the
-        loop's thread) when the world restarted."""
+        loop's thread) when the world restarted. ``decide_on_own_pose`` (realtime): a new
+        pose of this robot makes a step ready at once, not at the next tick (a robot whose
+        own pose comes from its localisation decides at that pose's rate)."""
         self.id = robot_id
         self.swarm = swarm
         self.realtime = realtime
@@ -86,6 +89,7 @@ class PoseInbox:
         self._log = log
         self._drop = drop
         self._on_restart = on_restart
+        self._own_ticks = realtime and decide_on_own_pose
         self.cond = threading.Condition(threading.Lock())
         # written by callbacks, under cond
         self._poses: dict[int, tuple[Pose, float]] = {}  # robot -> (pose, monotonic s received)
@@ -139,6 +143,9 @@ class PoseInbox:
                 self._col_n_live = pose.n_live
                 if self.id in self._col_ids and len(self._col_ids) >= pose.n_live:
                     self.cond.notify()
+            if self._own_ticks and rid == self.id:
+                self._next_tick = now  # decide on this pose now
+                self.cond.notify()
 
     def take_batch(self, payload: bytes, notify: bool = True) -> bool:
         """An all-poses sample: kept as the step to decide, or dropped (counted) when malformed.

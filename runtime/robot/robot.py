@@ -79,7 +79,7 @@ import sys
 import threading
 import time
 from types import FrameType
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 import zenoh
@@ -110,6 +110,9 @@ from runtime.wire.messages import (
     encode_status,
 )
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+if TYPE_CHECKING:
+    from runtime.ros2.robot_link import Ros2Link
 
 # add_arguments and run: the sub-command interface patternrl.cli loads from this module
 __all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
@@ -173,6 +176,7 @@ class Robot:
             log=self.log,
             drop=self._drop,
             on_restart=lambda: self.pattern.world_restarted(),
+            decide_on_own_pose=cfg.ros2 is not None,
         )
         self.pattern = TeamPattern(cfg.pattern, world, self.log)
         self.pattern.use_brain(brain)
@@ -196,6 +200,7 @@ class Robot:
         self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
         self._pose_sub: zenoh.Subscriber[None] | None = None
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
+        self._ros2: Ros2Link | None = None  # --ros2: the pose from ROS 2, the command to it
 
     # ------------------------------------------------------------- lifecycle
 
@@ -219,6 +224,12 @@ class Robot:
         z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
         self.swaps.start()
         z.callback(self.swaps.close)
+        if self.cfg.ros2 is not None:  # rclpy loads here only
+            from runtime.ros2.robot_link import open_robot_link
+
+            self._ros2 = z.enter_context(open_robot_link(
+                self.cfg.ros2, self, lambda: len(self._team_ids)
+            ))
         try:  # the latest pattern, if someone (the world) answers queries on it
             s.get(keys.pattern_key(sw), self._on_pattern_reply, timeout=2.0)
         except zenoh.ZError as e:  # a query nobody can answer is not an error
@@ -467,6 +478,8 @@ class Robot:
             brain_vy=bvy,
         )
         self._cmd_pub.put(encode_command(cmd))
+        if self._ros2 is not None:
+            self._ros2.command(cmd.vx, cmd.vy)
 
     def _publish_status(self, reply: SwapReply | None = None) -> None:
         status = self.stats.status(self.id, self.controller.brain.brain_id, reply)
@@ -486,6 +499,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg, safety = config_from_args(args, world)
         brain = load_brain(args.brain, world, cfg.trust)
+        if cfg.ros2 is not None:  # rclpy's libraries on the loader's path, before any thread
+            from runtime.ros2.environment import ensure_library_path, import_rclpy
+
+            ensure_library_path()
+            import_rclpy()
     except (InputError, BrainError) as e:
         print(f"patternrl robot: error: {one_line(str(e))}", file=sys.stderr)
         return 2

@@ -173,7 +173,9 @@ class Robots:
                 cmd += ["--conditions", cond, "--sensing-seed", str(args.seed)]
             if getattr(args, "estimator", False):
                 cmd += ["--estimator"]
-            if args.mode == "realtime":
+            if getattr(args, "ros2", False):  # the robot drives ROS 2 base robot_<id>
+                cmd += ["--ros2", f"robot_{rid}"]
+            elif args.mode == "realtime":
                 cmd += ["--rate-hz", str(args.rate_hz)]
             else:  # a robot waits for every pose of a step about as long as the world waits
                 # for its command: on a busy machine it still decides on complete steps,

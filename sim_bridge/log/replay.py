@@ -9,6 +9,7 @@
     patternrl replay run.mcap --brain other.onnx    what would another brain have done?
     patternrl replay run.mcap --play --rate 2 --swarm viewer
     patternrl replay cut.mcap --repair fixed.mcap   a killed writer's log, finished
+    patternrl replay run.mcap --to-rosbag2 run_bag  the run as a rosbag2 folder (ROS 2 types)
 
 Every figure comes from the log alone (:mod:`sim_bridge.log.report` says how each
 is computed); a log cut short is read up to its last complete chunk and the
@@ -218,6 +219,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "robot would, report how its commands differ from the recorded ones")
     g.add_argument("--safety", choices=("orca", "off"), default="orca",
                    help="the safety filter for --brain, as the robots run it (default orca)")
+    g = p.add_argument_group("ROS 2")
+    g.add_argument("--to-rosbag2", type=Path, metavar="DIR",
+                   help="write the run as a rosbag2 folder (MCAP storage): PoseStamped per "
+                        "robot, Twist commands, PoseArray and MarkerArray per step (needs the "
+                        "ros2 extra; sim_bridge/ros2/rosbag.py)")
     g = p.add_argument_group("damaged logs")
     g.add_argument("--repair", type=Path, metavar="OUT.mcap",
                    help="write every recovered message into a finished, indexed MCAP file")
@@ -252,7 +258,8 @@ def _check(args: argparse.Namespace) -> None:
     if len(args.logs) == 2:
         extra = [o for o, v in (("--plot", args.plot), ("--error-plot", args.error_plot),
                                 ("--animate", args.animate), ("--brain", args.brain),
-                                ("--repair", args.repair), ("--play", args.play)) if v]
+                                ("--repair", args.repair), ("--play", args.play),
+                                ("--to-rosbag2", args.to_rosbag2)) if v]
         if extra:
             raise InputError(f"{', '.join(extra)} take one log; two logs are compared only")
     if not (math.isfinite(args.rate) and args.rate > 0):
@@ -321,6 +328,13 @@ def _run_one(args: argparse.Namespace) -> int:
             raise InputError(f"--brain {args.brain}: {e}") from None
         out["counterfactual"] = cf.to_dict()
         lines += ["", format_counterfactual(cf)]
+    if args.to_rosbag2 is not None:
+        from sim_bridge.ros2.rosbag import write_rosbag2
+
+        counts = write_rosbag2(data, args.to_rosbag2)
+        out["rosbag2"] = {"path": str(args.to_rosbag2), "topics": counts}
+        lines.append(f"wrote rosbag2 {args.to_rosbag2}: {sum(counts.values())} messages on "
+                     f"{len(counts)} topics")
     pictures: dict[str, str] = {}
     if args.plot is not None:
         pictures["plot"] = str(draw_paths(report, data, args.plot))

@@ -18,6 +18,10 @@ swap it into each robot that runs another one, through the runtime's swap
 mechanism (:func:`runtime.brain.swap.swap_brain`); every answer is logged. So paper
 brains, one per pattern, play a whole sequence.
 
+ROS 2 (``--ros2``, :mod:`sim_bridge.ros2.fleet`): the robots move as a ROS 2 fleet, each
+``robot_<i>`` publishing ``odom`` and taking ``cmd_vel`` Twists, in realtime; the robots run
+``patternrl robot --ros2 robot_<i>``.
+
 Exit codes: 0 when every pattern formed; 1 when one did not, or no robots came;
 2 on bad input; 130 when interrupted (the log is finished either way).
 """
@@ -81,6 +85,10 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
     p.add_argument("--estimator", action="store_true",
                    help="launch: every robot tracks its peers and decides on the estimates")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--ros2", action="store_true",
+                   help="the robots as a ROS 2 fleet: /robot_<i>/odom out, /robot_<i>/cmd_vel "
+                        "(Twist) in, /swarm/poses and /swarm/markers for RViz; realtime "
+                        "(needs the ros2 extra; robots run with --ros2 robot_<i>)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -118,12 +126,18 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if getattr(args, "ros2", False):  # realtime: a ROS 2 base applies its newest Twist
+        args.mode = "realtime"
+        from runtime.ros2.environment import import_rclpy
+
+        import_rclpy()
     conditions = parse_conditions(getattr(args, "conditions", "perfect"))
     return SimConfig(
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
         step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
         conditions=conditions,
+        ros2=bool(getattr(args, "ros2", False)),
     )
 
 

@@ -93,6 +93,8 @@ class SimConfig:
     conditions: Conditions = PERFECT
     """The wheels' part is the world's (gain, actuation noise, differential drive); the
     sensing part is each robot's."""
+    ros2: bool = False
+    """The robots move as a ROS 2 fleet (``sim --ros2``: :mod:`sim_bridge.ros2.fleet`)."""
 
 
 @dataclass
@@ -156,8 +158,14 @@ class SimWorld:
         self.physics = PhysicsWorld(self.arena_m, self.w)
         self.journal = WorldLog(recorder, self.w, self.arena_m, log or _print_say,
                                 lambda: self.step)
-        self.link = WorldLink(session, cfg.swarm, cfg.mode == "lockstep", recorder,
-                              self.journal.event)
+        if cfg.ros2:  # odom out and Twists in over ROS 2 (rclpy loads here only)
+            from sim_bridge.ros2.fleet import Ros2FleetLink
+
+            self.link: WorldLink = Ros2FleetLink(session, cfg.swarm, False, recorder,
+                                                 self.journal.event, self.w, cfg.seed)
+        else:
+            self.link = WorldLink(session, cfg.swarm, cfg.mode == "lockstep", recorder,
+                                  self.journal.event)
         self.members = Membership(self.link.roster, self.physics, self.link, self.journal,
                                   self.rng, self.arena_m, self.w)
         if recorder is not None and cfg.mode == "lockstep" and recorder.sim_time is None:

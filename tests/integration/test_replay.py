@@ -687,3 +687,61 @@ def test_reader_handles_other_writers_settings(tmp_path: Path, compression: str,
     assert complete and ours == theirs and len(ours) == sum(1 for _ in iter_messages(src))
     a, b = report_log(src), report_log(log)
     assert b.finished and [asdict(p) for p in a.phases] == [asdict(p) for p in b.phases]
+
+
+def test_to_rosbag2_is_read_back_by_rosbags_with_types_counts_and_times(tmp_path: Path) -> None:
+    pytest.importorskip("rosbags", reason="the ros2 extra is not installed")
+    from rosbags.highlevel import AnyReader
+
+    log, bag = tmp_path / "known.mcap", tmp_path / "bag"
+    frames, t0 = write_synthetic(log)
+    r = subprocess.run([PY, "-m", "patternrl.cli", "replay", str(log), "--to-rosbag2", str(bag),
+                        "--json"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    written = json.loads(r.stdout)["rosbag2"]["topics"]
+    # expected, from the script: a pose per robot and step, a command per robot and step < 20
+    # but robot 1's at step 16 (the deadline miss)
+    poses: dict[int, list[tuple[int, tuple[float, float]]]] = {}
+    cmds: dict[int, list[int]] = {}
+    for step, pos in frames:
+        for rid, xy in pos.items():
+            poses.setdefault(rid, []).append((step, xy))
+            if step < 20 and (step, rid) != (16, 1):
+                cmds.setdefault(rid, []).append(step)
+    want = {f"/robot_{i}/pose": len(p) for i, p in poses.items()}
+    want |= {f"/robot_{i}/cmd_vel": len(c) for i, c in cmds.items()}
+    want |= {"/swarm/poses": len(frames), "/swarm/markers": len(frames)}
+    assert written == want
+    with AnyReader([bag]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types["/robot_0/pose"] == "geometry_msgs/msg/PoseStamped"
+        assert types["/robot_3/cmd_vel"] == "geometry_msgs/msg/Twist"
+        assert types["/swarm/poses"] == "geometry_msgs/msg/PoseArray"
+        assert types["/swarm/markers"] == "visualization_msgs/msg/MarkerArray"
+        assert {c.topic: c.msgcount for c in reader.connections} == want
+        got: dict[str, list[Any]] = {}
+        for conn, stamp, raw in reader.messages():
+            got.setdefault(conn.topic, []).append((stamp, reader.deserialize(raw, conn.msgtype)))
+    for rid, seq in poses.items():
+        msgs = got[f"/robot_{rid}/pose"]
+        for (step, (x, y)), (stamp, m) in zip(seq, msgs, strict=True):
+            assert stamp == t0 + step * 10**8  # the step's simulated time
+            assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == stamp
+            assert m.header.frame_id == "world"
+            assert (m.pose.position.x, m.pose.position.y) == (x, y)
+    for rid, steps in cmds.items():
+        tw = got[f"/robot_{rid}/cmd_vel"]
+        assert [s for s, _ in tw] == [t0 + s * 10**8 for s in steps]
+        assert all((m.linear.x, m.linear.y) == (0.5, 0.0) for _, m in tw)
+    stamp, arr = got["/swarm/poses"][12]  # robot 3 joined at step 12: 4 robots, id order
+    assert stamp == t0 + 12 * 10**8
+    assert [(p.position.x, p.position.y) for p in arr.poses] == [frames[12][1][i]
+                                                                for i in sorted(frames[12][1])]
+    _, marks = got["/swarm/markers"][12]
+    robots_m, targets_m = marks.markers
+    assert (robots_m.ns, targets_m.ns) == ("robots", "targets")
+    assert len(robots_m.points) == 4 and len(targets_m.points) == 4  # circle of 4 (resize)
+    # a second write to the same folder is refused, in one line
+    r = subprocess.run([PY, "-m", "patternrl.cli", "replay", str(log), "--to-rosbag2", str(bag)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "exists already" in r.stderr and len(r.stderr.splitlines()) == 1
