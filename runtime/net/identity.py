@@ -346,11 +346,17 @@ def check_role(ident: Identity, role: RoleName, robot_id: int | None = None) -> 
                             f"(that needs identity {need})")
 
 
-def apply_identity(conf: zenoh.Config, ident: Identity) -> None:
-    """Put the identity's mutual TLS and access rules into a Zenoh config."""
+def apply_identity(conf: zenoh.Config, ident: Identity, hears_robots: bool = False) -> None:
+    """Put the identity's mutual TLS and access rules into a Zenoh config.
+
+    ``hears_robots``: a robot that takes its peers' own poses (``robot --ros2``: no world
+    relays them) enforces every robot's rules, as the world does, built here from the
+    swarm's size rather than read from its file (which names the roles only)."""
+    acl = (access_control(ident.swarm, ident.robots, hears_robots=True)
+           if hears_robots and is_robot(ident.name) else ident.acl)
     try:
         conf.insert_json5("transport/link/tls", json.dumps(tls_section(ident.directory)))
-        conf.insert_json5("access_control", json.dumps(ident.acl))
+        conf.insert_json5("access_control", json.dumps(acl))
     except IdentityError:
         raise
     except Exception as e:  # zenoh.ZError: a config zenoh refuses

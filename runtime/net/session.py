@@ -209,8 +209,12 @@ def make_config(
     multicast: bool | None = None,
     cfg: Sequence[str] = (),
     identity: Identity | None = None,
+    hears_robots: bool = False,
 ) -> zenoh.Config:
     """A Zenoh config: the file if given (else defaults), then the explicit overrides.
+
+    ``hears_robots``: a robot identity enforces every robot's access rules
+    (:func:`runtime.net.identity.apply_identity`).
 
     In order: the file (or an empty config with multicast scouting off), the
     ``identity``'s mutual TLS and access rules, ``mode`` (None: the file's, else
@@ -245,7 +249,7 @@ def make_config(
         # never carry shared memory. A config file can turn it back on.
         _insert(conf, "transport/shared_memory/enabled", False, "shared memory")
     if identity is not None:
-        apply_identity(conf, identity)
+        apply_identity(conf, identity, hears_robots)
     if mode is not None:
         _insert(conf, "mode", mode, "zenoh mode")
     if multicast is not None:
@@ -390,7 +394,7 @@ def config_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.
             listen = d_listen
     return make_config(args.zenoh_mode, connect, listen, args.zenoh_config,
                        getattr(args, "multicast", None), getattr(args, "zenoh_cfg", None) or (),
-                       ident)
+                       ident, hears_robots=bool(getattr(args, "ros2", None)))
 
 
 def open_session_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.Session:
