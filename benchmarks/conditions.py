@@ -13,6 +13,10 @@ shipped general brain), pooled over the shapes and episodes:
 * ``coll/ep`` -- colliding pairs per episode, the hold window included;
 * ``steps`` -- steps to the first passage over the lower bound (mean over formed).
 
+A brain named ``X+naive`` runs as robots did before they knew their sensing: the safety
+filter on the raw views and their frame differences, no widened margin, no damped landing
+(the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates.
+
 Episode e of shape s is env e of a world seeded ``--seed + index(s)``: every brain sees
 the same starts and the same sensing noise.
 
@@ -61,14 +65,15 @@ BRAINS = ("rule:assign", "rule:frame", "rule:frame-balanced", "rule:frame-balanc
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
              shapes: tuple[str, ...]) -> dict[str, Any]:
     estimator = brain_name.endswith("+est")
-    path = brain_name.removesuffix("+est")
+    naive = brain_name.endswith("+naive")
+    path = brain_name.removesuffix("+est").removesuffix("+naive")
     brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
     cond = parse_conditions(CASES.get(case, case))
     tot: dict[str, float] = {"episodes": 0, "ok": 0, "formed": 0, "held": 0, "coll": 0,
                              "steps": 0.0, "wall": 0.0}
     for k, shape in enumerate(shapes):
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
-                           estimator=estimator, progress=False)
+                           estimator=estimator, progress=False, naive=naive)
         st = r.episode_stats
         formed = [f > 0 for f in st["formed"]]
         held = [h >= 0.9 for h in st["held"]]
@@ -110,7 +115,9 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"comma-separated case names or condition specs (default all: "
                    f"{', '.join(CASES)})")
     p.add_argument("--brains", default=",".join(BRAINS),
-                   help="comma-separated brains; '+est' adds the estimator")
+                   help="comma-separated brains; '+est' adds the estimator, '+naive' runs the "
+                   "robot as before it knew its sensing (filter on the raw views and their "
+                   "frame differences, no widened margin, no damped landing)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
     p.add_argument("--quick", action="store_true", help="4 episodes, circle and heart")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -150,13 +150,15 @@ def evaluate_brain(
     conditions: Conditions = PERFECT,
     estimator: bool = False,
     hold_steps: int = HOLD_STEPS,
+    naive: bool = False,
 ) -> EvalResult:
     """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
 
     Under perfect sensing (and without the estimator) every robot of a team sees the same
     team, and one batch decision per step serves them all; otherwise each robot decides on
-    its own view (:class:`runtime.decision.local.LocalDecisions`). The wheels of
-    ``conditions`` act in the world either way."""
+    its own view (:class:`runtime.decision.local.LocalDecisions`; ``naive``: without what a
+    robot knows of its sensing, for comparison). The wheels of ``conditions`` act in the
+    world either way."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -173,7 +175,7 @@ def evaluate_brain(
     local = None
     if estimator or not conditions.sensing_perfect:
         local = LocalDecisions(brain, episodes, n_robots, conditions, estimator=estimator,
-                               safety=safety, seed=seed, world=world)
+                               safety=safety, seed=seed, world=world, naive=naive)
     E = episodes
     done = np.zeros(E, bool)
     formed = np.zeros(E, bool)

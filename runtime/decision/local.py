@@ -44,11 +44,11 @@ class Perception:
 
     def __init__(self, conditions: Conditions, observer: IntArray,
                  seeds: list[np.random.SeedSequence], estimator: bool = False,
-                 world: WorldConfig = DEFAULT_WORLD) -> None:
+                 world: WorldConfig = DEFAULT_WORLD, naive: bool = False) -> None:
         self.conditions = conditions
         self.sensor = Sensor(conditions, observer, seeds)
         self.estimator = estimator
-        tracked = estimator or not conditions.sensing_perfect
+        tracked = estimator or not (conditions.sensing_perfect or naive)
         self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
                                    world=world) if tracked else None
 
@@ -68,19 +68,24 @@ class LocalDecisions:
 
     ``seed``: robot i of env e senses with generator ``SeedSequence((seed, e, i))``.
     ``safety`` None: the speed clamp only; else its margin is widened for ``conditions``.
+    ``naive``: a robot that ignores what it knows of its sensing (no tracker for its filter,
+    no widened margin, no damped landing): the pipeline as it ran before any of these, for
+    comparison (``benchmarks/conditions.py``'s ``+naive`` brains).
     """
 
     def __init__(self, brain: Brain, n_envs: int, n_robots: int, conditions: Conditions,
                  *, estimator: bool = False, safety: OrcaParams | None = OrcaParams(),  # noqa: B008
-                 seed: int = 0, world: WorldConfig = DEFAULT_WORLD) -> None:
+                 seed: int = 0, world: WorldConfig = DEFAULT_WORLD,
+                 naive: bool = False) -> None:
         E, n = n_envs, n_robots
         self.n_envs, self.n_robots = E, n
         self.conditions = conditions
         observer = np.tile(np.arange(n), E)
         seeds = [np.random.SeedSequence((seed, e, i)) for e in range(E) for i in range(n)]
-        self.perception = Perception(conditions, observer, seeds, estimator, world)
-        self.safety = None if safety is None else uncertainty_params(safety, conditions, world)
-        settle = settle_for(conditions, estimator, world)
+        self.perception = Perception(conditions, observer, seeds, estimator, world, naive)
+        self.safety = safety if safety is None or naive else uncertainty_params(
+            safety, conditions, world)
+        settle = None if naive else settle_for(conditions, estimator, world)
         self.controllers = [Controller(brain, world, self.safety, settle)
                             for _ in range(E * n)]
         self.step = 0
