@@ -55,7 +55,10 @@ phase's results: formed, steps, lower bounds, travel, collisions, min separation
 deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
 ``leave``, ``collision`` (robot pairs that overlapped during the step),
 ``contact`` (pairs the physics saw start touching, walls included),
-``deadline_miss`` (robots that had not answered step ``for_step`` in time), ``malformed``
+``deadline_miss`` (robots that had not answered step ``for_step`` in time),
+``stale_command`` (of those, the robots that moved on an older command, and each
+command's ``ages``: steps between its poses and ``for_step``), ``stale_guard`` (robots
+whose applied command the world's guard slowed down at ``for_step``), ``malformed``
 (a payload that did not decode), ``payload_refused`` (key and bytes of a payload over
 the size limit, not written), ``run_end`` (outcome).
 
@@ -176,7 +179,8 @@ EVENT_SCHEMA: Final[dict[str, Any]] = {
     "type": "object",
     "properties": {
         "kind": {"type": "string", "description": "run_start, pattern, phase_start, phase_end, "
-                 "brain_swap, join, leave, collision, contact, deadline_miss, malformed, "
+                 "brain_swap, join, leave, collision, contact, deadline_miss, stale_command, "
+                 "stale_guard, malformed, "
                  "payload_refused, run_end"},
         "step": {"type": "integer", "description": "world step when it happened"},
         "time_s": {"type": "number", "description": "simulated time, step * dt (s)"},
@@ -201,7 +205,16 @@ METRICS_SCHEMA: Final[dict[str, Any]] = {
         "min_separation_m": {"type": "number"},
         "collisions": {"type": "integer", "description": "robot pairs overlapping this step"},
         "contacts": {"type": "integer", "description": "contacts the physics saw begin"},
-        "deadline_misses": {"type": "integer", "description": "robots that held still"},
+        "deadline_misses": {"type": "integer",
+                            "description": "robots without a command for the step in time"},
+        "stale_commands": {"type": "integer",
+                           "description": "of those, robots that moved on an older command"},
+        "command_age_max": {"type": "integer",
+                            "description": "oldest command applied (steps since its poses)"},
+        "held_still": {"type": "integer",
+                       "description": "robots that held still (no command within the bound)"},
+        "guard_scaled": {"type": "integer",
+                         "description": "commands the world's guard slowed down or stopped"},
         "wall_ms": {"type": "number", "description": "wall time of the step (ms)"},
     },
     "required": ["step", "time_s", "n_live", "formation_error_m", "min_separation_m"],

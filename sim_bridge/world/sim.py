@@ -43,6 +43,10 @@ from sim_bridge.log.recorder import Recorder, check_output
 from sim_bridge.world.brain_choice import BrainChoice, brains_from_arg
 from sim_bridge.world.run_results import RunResult, result_dict
 from sim_bridge.world.sim_world import DEFAULT_PATTERNS, SimConfig, SimWorld
+from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS
+
+MAX_AGE_STEPS_LIMIT = 50
+"""The largest --max-command-age-steps accepted (5 s at 10 Hz)."""
 
 # --------------------------------------------------------------------------- CLI
 
@@ -69,6 +73,10 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                    help=f"step limit per pattern (default {DEFAULT_WORLD.step_limit})")
     p.add_argument("--rate-hz", type=float, default=1.0 / DEFAULT_WORLD.dt_s,
                    help="realtime step rate (default 1/dt = 10)")
+    p.add_argument("--max-command-age-steps", type=int, default=None, metavar="K",
+                   help="a robot without a command for the step in time moves on its newest "
+                        "one if decided from the poses of the last K steps, else holds still "
+                        f"(default: {DEFAULT_MAX_AGE_STEPS} in realtime, 0 in lockstep)")
     p.add_argument("--brain-kind", choices=("general", "paper"), default="general",
                    help="with a brains directory, which observation to prefer (default general)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -108,10 +116,15 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
+    age = getattr(args, "max_command_age_steps", None)
+    if age is not None and not 0 <= age <= MAX_AGE_STEPS_LIMIT:
+        raise InputError(f"--max-command-age-steps must be in 0..{MAX_AGE_STEPS_LIMIT}, "
+                         f"got {age}")
     return SimConfig(
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
         step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
+        max_command_age_steps=age,
     )
 
 

@@ -13,11 +13,15 @@ The world owns the truth (where every robot is) and the clock. Each step it
      is dropped and counted, and nothing ever waits longer than the deadline;
    * ``realtime``: one step every ``1 / rate_hz`` seconds on a fixed schedule
      (the world's own work comes out of the period); the commands for that step
-     that arrived before its tick are applied, nothing older;
+     that arrived before its tick are applied fresh;
 
-   in both modes a robot whose command for the step is missing or late holds
-   still for the step (counted): a command is only ever applied to the positions
-   it was decided from (see :mod:`sim_bridge.world.world_link`);
+   a robot whose command for the step is missing or late (a deadline miss) moves on
+   its newest command if that is at most ``max_command_age_steps`` steps old
+   (realtime's default :data:`~sim_bridge.world.world_link.DEFAULT_MAX_AGE_STEPS`,
+   lockstep's 0), else holds still (see :mod:`sim_bridge.world.world_link`); when a
+   robot missed, the step's motions go through the guard
+   (:mod:`sim_bridge.world.stale_guard`), which slows the older of two commands that
+   would bring their robots closer than 2R;
 
 3. steps the physics (:mod:`sim_bridge.world.physics`), then measures the formation
    against the current pattern (:mod:`sim_bridge.world.phase_tally`) and records
@@ -63,7 +67,8 @@ from sim_bridge.world.membership import Membership
 from sim_bridge.world.phase_tally import PhaseTally
 from sim_bridge.world.physics import PhysicsWorld, arena_for_patterns
 from sim_bridge.world.run_results import PhaseResult, Progress, RunResult
-from sim_bridge.world.world_link import WorldLink
+from sim_bridge.world.stale_guard import guard_stale
+from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS, WorldLink
 from sim_bridge.world.world_log import Say, WorldLog
 
 DEFAULT_PATTERNS = "circle,cross,line,heart"
@@ -87,7 +92,16 @@ class SimConfig:
     wait_robots_s: float = 30.0
     swap_timeout_s: float = 15.0
     pattern_republish_s: float = 1.0
+    max_command_age_steps: int | None = None
+    """Oldest command still applied (steps); None: 0 in lockstep, DEFAULT_MAX_AGE_STEPS in
+    realtime."""
     world: WorldConfig = DEFAULT_WORLD
+
+    @property
+    def max_age_steps(self) -> int:
+        if self.max_command_age_steps is not None:
+            return self.max_command_age_steps
+        return 0 if self.mode == "lockstep" else DEFAULT_MAX_AGE_STEPS
 
 
 @dataclass
@@ -150,7 +164,7 @@ class SimWorld:
         self.journal = WorldLog(recorder, self.w, self.arena_m, log or _print_say,
                                 lambda: self.step)
         self.link = WorldLink(session, cfg.swarm, cfg.mode == "lockstep", recorder,
-                              self.journal.event)
+                              self.journal.event, cfg.max_age_steps)
         self.members = Membership(self.link.roster, self.physics, self.link, self.journal,
                                   self.rng, self.arena_m, self.w)
         if recorder is not None and cfg.mode == "lockstep" and recorder.sim_time is None:
@@ -194,6 +208,7 @@ class SimWorld:
             self.journal.event(
                 "run_start", swarm=cfg.swarm, robots=cfg.robots, patterns=cfg.patterns,
                 mode=cfg.mode, seed=cfg.seed, step_deadline_ms=cfg.step_deadline_ms,
+                max_command_age_steps=cfg.max_age_steps,
                 max_steps=cfg.max_steps, rate_hz=cfg.rate_hz, arena_m=self.arena_m,
                 world=asdict(self.w), brains={k: asdict(v) for k, v in (cfg.brains or {}).items()})
             if not self.members.wait_for_robots(cfg.robots, cfg.wait_robots_s, self.stop_event):
@@ -282,15 +297,20 @@ class SimWorld:
         pos = self.physics.positions()
         t_step = time.monotonic()
         cpu_step = time.thread_time()
-        v, missed = self.link.exchange(self.step, self.w.dt_s, ids, pos,
-                                       self._deadline_s(first), self.stop_event)
+        v, missed, age = self.link.exchange(self.step, self.w.dt_s, ids, pos,
+                                            self._deadline_s(first), self.stop_event)
         if self.stop_event.is_set():
             return False
+        scaled: list[int] = []
+        if missed:  # stale commands and robots held still: no motion may close a pair in
+            v, rows = guard_stale(pos, v, age, self.w, self.arena_m)
+            scaled = [ids[k] for k in rows.tolist()]
         res = self.physics.step(v)
         self.link.moved(ids, pos)
         self.step += 1
         ph.steps += 1
-        m = ph.tally.step(ids, pos, res.positions, ph.C, res.new_contacts, missed, self.w)
+        m = ph.tally.step(ids, pos, res.positions, ph.C, res.new_contacts, missed, self.w,
+                          age=age, scaled=scaled)
         brains = self.link.brains()
         ph.brain_ids.update(brains.get(r, "") for r in ids)
         self.journal.step_measures(m)
@@ -330,6 +350,8 @@ class SimWorld:
             min_separation_m=(round(t.min_separation_m, 6) if math.isfinite(t.min_separation_m)
                               else -1.0),
             deadline_misses=t.deadline_misses, late_commands=self.link.late - ph.late0,
+            stale_commands=t.stale_commands, held_still=t.held_still,
+            command_age_max=t.command_age_max, guard_scaled=t.guard_scaled,
             final_error_m=round(t.error_m, 6), brain=phase_brain_label(ph.choice, seen),
             brain_ids=seen, joins=t.joins, leaves=t.leaves, start_step=ph.start_step,
             end_step=self.step, wall_s=round(time.monotonic() - ph.t_start, 3),
