@@ -90,6 +90,7 @@ from runtime.errors import InputError
 from runtime.log import Log, one_line
 from runtime.net.session import ZenohSetupError, direct, open_session_from_args
 from runtime.robot.cli import RobotConfig, add_arguments, config_from_args
+from runtime.robot.in_flight import InFlight
 from runtime.robot.inbox import PoseInbox, Step
 from runtime.robot.status import RobotStats
 from runtime.robot.swap_worker import SwapReply, SwapWorker
@@ -181,6 +182,7 @@ class Robot:
         self._first_cmd_logged = False
         self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
         self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
+        self._in_flight = InFlight() if cfg.mode == "realtime" else None
         self._pose_sub: zenoh.Subscriber[None] | None = None
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
 
@@ -348,9 +350,15 @@ class Robot:
             d = _still(why)
         else:
             try:
-                d = self.controller.decide(
-                    step.ids.index(self.id), step.positions, pattern, step.step
-                )
+                me = step.ids.index(self.id)
+                positions = step.positions
+                if self._in_flight is not None:  # where its late commands take it meanwhile
+                    dx, dy = self._in_flight.displacement(step.step, self.inbox.arrived,
+                                                          self.world.dt_s)
+                    if dx or dy:
+                        positions = positions.copy()
+                        positions[me] += (dx, dy)
+                d = self.controller.decide(me, positions, pattern, step.step)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -362,6 +370,9 @@ class Robot:
 
     def _send(self, step: int, d: Decision) -> None:
         self._publish_cmd(step, d)
+        if self._in_flight is not None:
+            self._in_flight.sent(step, d.velocity[0], d.velocity[1], time.monotonic(),
+                                 self.inbox.newest_step)
         t = self.stats.decided(step, d.decision_us, d.safety_changed)
         if not self._first_cmd_logged:
             self._first_cmd_logged = True
@@ -371,6 +382,8 @@ class Robot:
     def _hold_still(self, why: str) -> None:
         self._holding = True
         self.controller.reset()
+        if self._in_flight is not None:
+            self._in_flight.reset()
         self._team_ids = []
         self.stats.error(f"watchdog: {why}", count=False)
         self.log("warning", "watchdog", why)

@@ -58,6 +58,7 @@ import numpy as np
 import zenoh
 
 from runtime.net.session import direct
+from runtime.robot.in_flight import MAX_COMMAND_AGE_STEPS
 from runtime.types import Array, IntArray
 from runtime.wire import keys
 from runtime.wire.messages import (
@@ -77,8 +78,9 @@ MALFORMED_EVENTS = 100
 """Malformed samples logged one by one; enough to diagnose, the count goes on."""
 SILENT_STEPS = 3
 """``lockstep``: a robot silent this many exchanges in a row is no longer waited for."""
-DEFAULT_MAX_AGE_STEPS = 3
-"""realtime: the oldest command (in steps since its poses) still applied, by default."""
+DEFAULT_MAX_AGE_STEPS = MAX_COMMAND_AGE_STEPS
+"""realtime: the oldest command (in steps since its poses) still applied, by default (the
+robots' prediction of their own late motion, :mod:`runtime.robot.in_flight`, assumes it)."""
 
 
 class Collected(NamedTuple):
