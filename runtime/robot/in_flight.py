@@ -2,20 +2,20 @@
 one is.
 
 In realtime the world applies a robot's newest command each step, even one decided from the
-poses of a few steps before (up to :data:`MAX_COMMAND_AGE_STEPS`; see
-``sim_bridge/world/world_link.py``). A robot whose commands arrive k steps late therefore
-decides from poses that do not yet show the motion of its last k commands, and a decision
-that ignored them would count that motion twice: near its slot it would overshoot, and a
-swarm that is late for long would circle around its pattern instead of forming it.
+poses of a few steps before (up to :data:`MAX_COMMAND_AGE_STEPS`), each command for one step
+at most (see ``sim_bridge/world/world_link.py``). A robot whose commands arrive k steps late
+therefore decides from poses that do not yet show the motion of its last commands, and a
+decision that ignored them would count that motion twice: near its slot it would overshoot,
+and a swarm that is late for long would circle around its pattern instead of forming it.
 
 :class:`InFlight` keeps the commands this robot sent, when, and how late each went out
 (the newest step heard when it was sent, minus its own step). Deciding on the poses of step
 s, the robot expects its command to be applied ``lag`` steps later (the median lag of its
-last commands) and moves its own position, for the decision, by what the world applies to it
-meanwhile: at each step j in [s, s + lag), the newest command it had sent before the poses of
-j + 1 came (the end of step j), or for the steps still to come the newest sent so far --
-each as long as the world still applies it (no older than :data:`MAX_COMMAND_AGE_STEPS`). On
-time (lag 0) nothing moves. The world's guard (``sim_bridge/world/stale_guard.py``), not this
+last commands) and moves its own position, for the decision, by what the world applies to
+it meanwhile, by the world's rule: at each step j, the newest command sent before the poses
+of j + 1 came (the end of step j; for steps still to come, the newest sent so far), if not
+applied at an earlier step and no older than :data:`MAX_COMMAND_AGE_STEPS`. On time (lag 0)
+nothing moves. The world's guard (``sim_bridge/world/stale_guard.py``), not this
 prediction, is what keeps stale motions safe.
 """
 
@@ -69,23 +69,23 @@ class InFlight:
             return 0
         return sorted(self._lags)[len(self._lags) // 2]
 
-    def _applied(self, j: int, before: float | None) -> Sent | None:
-        """The command the world applies at step ``j``: the newest sent before ``before``
-        (None: any time), if still young enough."""
-        for c in reversed(self._sent):
-            if before is not None and c.t >= before:
-                continue
-            return c if 0 <= j - c.step <= self.max_age_steps else None
-        return None
-
     def displacement(self, step: int, arrived: Callable[[int], float | None], dt_s: float
                      ) -> tuple[float, float]:
         """Metres this robot moves, from its pose at ``step``, before a command decided now
         is applied; ``arrived(j)`` is when the poses of step j came (None if not yet)."""
+        lag = self.lag
+        if not lag or not self._sent:
+            return 0.0, 0.0
         dx = dy = 0.0
-        for j in range(step, step + self.lag):
-            c = self._applied(j, arrived(j + 1))
-            if c is not None:
+        applied = -1  # step of the last command applied, replaying the world's rule
+        for j in range(self._sent[0].step, step + lag):
+            end = arrived(j + 1)
+            c = next((c for c in reversed(self._sent) if end is None or c.t < end), None)
+            if (c is None or c.step <= applied or c.step > j
+                    or j - c.step > self.max_age_steps):
+                continue
+            applied = c.step
+            if j >= step:
                 dx += c.vx * dt_s
                 dy += c.vy * dt_s
         return dx, dy

@@ -223,7 +223,9 @@ class SimWorld:
             self.journal.event(
                 "run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),
                 formed=[p.formed for p in phases], malformed=self.malformed,
-                contacts_total=self.physics.contacts_total)
+                contacts_total=self.physics.contacts_total,
+                stepping_cpu_s=round(self.stepping_cpu_s, 4),
+                stepping_wall_s=round(self.stepping_wall_s, 4), overruns=self.overruns)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
                          str(self.rec.path) if self.rec and self.rec.path else None,

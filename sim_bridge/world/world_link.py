@@ -27,9 +27,12 @@ publisher says who listens, so nobody listening costs nothing.
 deadline miss; a command that arrives after its step's deadline as ``late``). With
 ``max_age_steps`` k > 0 (realtime's default, :data:`DEFAULT_MAX_AGE_STEPS`) such a
 robot still moves on its newest command if that was decided from the poses of one of
-the last k steps (*stale*, age t - s: a late command is not thrown away, so a
-swarm whose round trip is longer than a period slows down instead of standing
-still); beyond k steps, or with no command at all, it holds still. The age of every
+the last k steps and has not been applied yet (*stale*, age t - s: a late command is
+not thrown away, so a swarm whose round trip is longer than a period slows down
+instead of standing still); otherwise it holds still. Each command moves its robot
+for one step at most: applied twice, a command that brings its robot onto its slot
+would carry it past (the robot's own account of its late commands,
+:mod:`runtime.robot.in_flight`, follows the same rule). The age of every
 applied command is returned (:class:`Collected`) and logged by the world; the world
 guards stale motions (:mod:`sim_bridge.world.stale_guard`). With k = 0 (lockstep's
 default) every velocity applied was decided from exactly the positions it is
@@ -127,6 +130,7 @@ class WorldLink:
         self._cmds: dict[int, Command] = {}
         self._cmd_t: dict[int, float] = {}
         self._newest: dict[int, Command] = {}  # robot -> its command for the newest step
+        self._applied: dict[int, int] = {}  # robot -> step of the last command applied
         self._last_step = -1  # the newest step whose poses went out
         self._brain_of: dict[int, str] = {}
         self._exchanges = 0  # exchanges begun
@@ -314,6 +318,7 @@ class WorldLink:
         self._prev_pos.pop(rid, None)
         with self.cond:
             self._newest.pop(rid, None)
+        self._applied.pop(rid, None)
 
     def _undeclare_poses(self) -> None:
         for rid in list(self._pose_pubs):
@@ -405,8 +410,10 @@ class WorldLink:
             else:
                 missed.append(rid)
                 cmd = newest.get(rid)
-                if cmd is None or not 0 < step - cmd.step <= self.max_age_steps:
-                    continue  # none, or too old: the robot holds still
+                if (cmd is None or not 0 < step - cmd.step <= self.max_age_steps
+                        or cmd.step <= self._applied.get(rid, -1)):
+                    continue  # none, too old or applied already: the robot holds still
                 age[k] = step - cmd.step
+            self._applied[rid] = cmd.step
             v[k] = (cmd.vx, cmd.vy)
         return Collected(v, missed, age)

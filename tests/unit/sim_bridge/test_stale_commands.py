@@ -129,20 +129,23 @@ def test_world_link_applies_a_late_command_until_it_is_too_old() -> None:
             robot.put(keys.cmd_key(swarm, 1), encode_command(
                 Command(1, 0, 0.25, -0.5, "rule:assign", False, 0.0, 12.0)))
             wait_until(lambda: link.late >= 1, "the late command")
-            for step, want_age in ((1, 1), (2, 2)):  # applied while at most 2 steps old
-                v, missed, age = link.exchange(step, W.dt_s, [1], pos, 0.02, stop)
-                assert missed == [1] and age.tolist() == [want_age]
-                assert v.tolist() == [[0.25, -0.5]]
-            v, missed, age = link.exchange(3, W.dt_s, [1], pos, 0.02, stop)  # too old
+            v, missed, age = link.exchange(1, W.dt_s, [1], pos, 0.02, stop)  # applied, stale
+            assert missed == [1] and age.tolist() == [1] and v.tolist() == [[0.25, -0.5]]
+            v, missed, age = link.exchange(2, W.dt_s, [1], pos, 0.02, stop)  # not twice
+            assert missed == [1] and age.tolist() == [-1] and v.tolist() == [[0.0, 0.0]]
+            robot.put(keys.cmd_key(swarm, 1), encode_command(
+                Command(1, 1, 0.5, 0.0, "rule:assign", False, 0.0, 12.0)))
+            wait_until(lambda: link.late >= 2, "the second late command")
+            v, missed, age = link.exchange(4, W.dt_s, [1], pos, 0.02, stop)  # 3 steps: too old
             assert missed == [1] and age.tolist() == [-1] and v.tolist() == [[0.0, 0.0]]
             # a command for an older step than the newest kept does not replace it
             robot.put(keys.cmd_key(swarm, 1), encode_command(
-                Command(1, 3, 0.1, 0.0, "rule:assign", False, 0.0, 12.0)))
+                Command(1, 4, 0.1, 0.0, "rule:assign", False, 0.0, 12.0)))
             robot.put(keys.cmd_key(swarm, 1), encode_command(
-                Command(1, 2, 0.9, 0.0, "rule:assign", False, 0.0, 12.0)))
-            wait_until(lambda: link.late >= 3, "two late commands")
-            v, missed, age = link.exchange(4, W.dt_s, [1], pos, 0.02, stop)
-            assert age.tolist() == [1] and v.tolist() == [[0.1, 0.0]]
+                Command(1, 3, 0.9, 0.0, "rule:assign", False, 0.0, 12.0)))
+            wait_until(lambda: link.late >= 4, "two late commands")
+            v, missed, age = link.exchange(6, W.dt_s, [1], pos, 0.02, stop)
+            assert age.tolist() == [2] and v.tolist() == [[0.1, 0.0]]
             token.undeclare()
     finally:
         robot.close()  # type: ignore[no-untyped-call]
