@@ -8,7 +8,7 @@ Part 1, **realtime** (10 Hz) with N = 10, 25, 50, 100 robots, each N run two way
   the MCAP log recorded with its Foxglove scene every step, the general brain. Its figures
   come from its ``--json`` line and its log (the world's ``run_end``: CPU of its stepping
   thread); CPU per robot-step is every process of the run (the launcher, its world and
-  every child it waited for: robots, router), start-up included;
+  every child it waited for: robots, router) from the pattern's start (start-up left out);
 * ``open``: the same swarm open and unrecorded, as the figures before this one: the world
   in this process (no recorder, no scene), open TCP on loopback, ``patternrl robot``
   processes (ORCA on). Its CPU per robot-step is the robots' alone, start-up left out.
@@ -225,6 +225,31 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0,
     }
 
 
+def _tree_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system, with waited-for children) of ``pid`` and its descendants."""
+    kids: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            kids.setdefault(ppid, []).append(int(d))
+    total, todo = 0.0, [pid]
+    tick = os.sysconf("SC_CLK_TCK")
+    while todo:
+        p = todo.pop()
+        todo += kids.get(p, [])
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                cols = f.read().rsplit(")", 1)[1].split()
+            total += sum(int(c) for c in cols[11:15]) / tick  # utime stime cutime cstime
+        except (OSError, ValueError, IndexError):
+            continue
+    return total
+
+
 def _timeliness(misses: int, stale: int, held: int, n: int, steps: int) -> dict[str, float]:
     rs = max(1, n * steps)
     return {"late_share": round(misses / rs, 4), "in_time_share": round(1 - misses / rs, 4),
@@ -241,26 +266,39 @@ def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
     cmd = [sys.executable, "-c", "from patternrl.cli import main; raise SystemExit(main())",
            "launch", "--robots", str(n), "--patterns", "circle", "--mode", "realtime",
            "--seed", str(seed), "--max-steps", str(max_steps), "--record", str(rec),
-           "--json", "--no-plot", "--start-timeout-s", "300"]
+           "--json", "--no-plot", "--start-timeout-s", "300", "--verbose"]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
+    at_start: list[float] = []  # CPU of the run's processes when the pattern began
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False,
-                             timeout=600 + 2 * max_steps)
+        out_file = open(tmp / "stdout", "w+")  # read back below
+        proc = subprocess.Popen(cmd, stdout=out_file, stderr=subprocess.PIPE, text=True,
+                                cwd=ROOT)
+        assert proc.stderr is not None
+        err: list[str] = []
+        for line in proc.stderr:  # the world says when the pattern begins: start-up is over
+            err.append(line)
+            if not at_start and "pattern 1/" in line:
+                at_start.append(_tree_cpu_s(proc.pid))
+        code = proc.wait(timeout=600 + 2 * max_steps)
+        out_file.seek(0)
+        stdout = out_file.read()
+        out_file.close()
         wall = time.monotonic() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
+        lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
         if not lines:
-            raise RuntimeError(f"launch gave no result (exit {out.returncode}): "
-                               f"{out.stderr[-1500:]}")
+            raise RuntimeError(f"launch gave no result (exit {code}): {''.join(err)[-1500:]}")
         res = json.loads(lines[-1])
         run = read_log(rec)
         (end,) = run.events_of("run_end") or [{}]
+        ages = [int(a) for e in run.events_of("stale_command") for a in e.get("ages", [])]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     (ph,) = res["phases"]
     steps = ph["steps"]
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    cpu -= at_start[0] if at_start else 0.0
     return {
         "config": "launch", "seed": seed, "n": n, "mode": "realtime",
         "topology": "router" if n > 20 else "peer", "steps": steps, "formed": ph["formed"],
@@ -271,6 +309,8 @@ def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
                       ph.get("held_still", ph["deadline_misses"]), n, steps),
         "command_age_max": ph.get("command_age_max", 0),
         "guard_scaled": ph.get("guard_scaled", 0), "late_commands": ph["late_commands"],
+        "stale_ages": {int(a): int(c) for a, c in zip(*np.unique(ages, return_counts=True),
+                                                       strict=True)},
         "world_overruns": end.get("overruns"),
         "latency_ms_p50": None, "latency_ms_p99": None,
         "cpu_ms_per_robot_step": round(cpu * 1000.0 / max(1, n * steps), 3),
@@ -278,7 +318,7 @@ def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
                                   if end.get("stepping_cpu_s") is not None else None),
         "pss_mb_median": None, "rss_mb_median": None, "start_s": None,
         "wall_s": round(wall, 1), "tcp_links": None, "threads_per_robot": None,
-        "router_cpu_ms_per_step": None, "exit": out.returncode,
+        "router_cpu_ms_per_step": None, "exit": code,
         "load_average_1min": round(os.getloadavg()[0], 2),
     }
 
