@@ -60,7 +60,8 @@ deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
 command's ``ages``: steps between its poses and ``for_step``), ``stale_guard`` (robots
 whose applied command the world's guard slowed down at ``for_step``), ``malformed``
 (a payload that did not decode), ``payload_refused`` (key and bytes of a payload over
-the size limit, not written), ``run_end`` (outcome).
+the size limit, not written), ``run_end`` (outcome), ``log_dropped`` (messages the
+recorder's writer could not keep up with and dropped, counted, at the end).
 
 ``/world/scene``: one ``foxglove.SceneUpdate`` per step, frame ``world``: an
 entity per robot (entity id = the robot id, a cylinder of diameter 2R at its
@@ -180,7 +181,7 @@ EVENT_SCHEMA: Final[dict[str, Any]] = {
     "properties": {
         "kind": {"type": "string", "description": "run_start, pattern, phase_start, phase_end, "
                  "brain_swap, join, leave, collision, contact, deadline_miss, stale_command, "
-                 "stale_guard, malformed, "
+                 "stale_guard, malformed, log_dropped, "
                  "payload_refused, run_end"},
         "step": {"type": "integer", "description": "world step when it happened"},
         "time_s": {"type": "number", "description": "simulated time, step * dt (s)"},

@@ -142,7 +142,7 @@ def open_recorder(args: argparse.Namespace, live: FoxgloveLive | None) -> Record
     """The recorder of ``--record`` and/or ``--foxglove``; :class:`InputError` for a bad path."""
     if args.record is None and live is None:
         return None
-    return Recorder(args.record, live=live, overwrite=bool(args.force))
+    return Recorder(args.record, live=live, overwrite=bool(args.force), threaded=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -225,7 +225,8 @@ class SimWorld:
                 formed=[p.formed for p in phases], malformed=self.malformed,
                 contacts_total=self.physics.contacts_total,
                 stepping_cpu_s=round(self.stepping_cpu_s, 4),
-                stepping_wall_s=round(self.stepping_wall_s, 4), overruns=self.overruns)
+                stepping_wall_s=round(self.stepping_wall_s, 4), overruns=self.overruns,
+                log_dropped=self.rec.dropped if self.rec is not None else 0)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
                          str(self.rec.path) if self.rec and self.rec.path else None,
