@@ -211,6 +211,7 @@ class Recorder:
         self._queue: queue.Queue[tuple[Callable[..., None], tuple[Any, ...], int] | None] | None
         self._queue = None
         self._thread: threading.Thread | None = None
+        self._drop_lock = threading.Lock()
         if threaded:
             self._queue = queue.Queue(maxsize=queue_items)
             self._thread = threading.Thread(target=self._write_queued, name="recorder-writer",
@@ -224,7 +225,7 @@ class Recorder:
         try:
             self._queue.put_nowait((fn, args, time.time_ns()))
         except queue.Full:
-            with self._lock:
+            with self._drop_lock:
                 self.dropped += 1
 
     def _write_queued(self) -> None:
