@@ -16,11 +16,14 @@ With the world's poses of a step in one message (``patternrl/<swarm>/poses``,
 what ``patternrl sim`` sends), both modes decide on each new step as soon as
 its message arrives, on the newest step only (:mod:`runtime.robot.inbox`).
 
-Late never means unsafe: a command carries the step whose poses it was decided
-from, and the world applies it to that step only; a command that misses its
-step's deadline is discarded and the robot holds still for that step (the
-world's rule, :mod:`sim_bridge.world.world_link`). A slow robot therefore costs
-progress, never separation.
+Late is slower, never unsafe: a command carries the step whose poses it was decided
+from. In realtime the world applies a late one for one step while it is at most a
+few steps old (the world's rule, :mod:`sim_bridge.world.world_link`, guarded by
+:mod:`sim_bridge.world.stale_guard`); the robot decides from where its own late
+commands will have taken it (:mod:`runtime.robot.in_flight`). A robot that falls
+behind -- all-poses messages queued while it decided -- lets those go undecided
+until the newest, and decides on the next one that did not wait behind another
+(:meth:`Robot._on_poses`): a backlog drains instead of growing.
 
 Nothing waits on another robot's decision. Every decision goes through the
 :class:`runtime.decision.controller.Controller`: shared assignment, the observation the
@@ -110,6 +113,9 @@ __all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
 
 HEAVY_MODULES: Final = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
 IDLE_WAKE_S: Final = 0.2  # the loop looks at status, watchdog and stop at least this often
+BACKLOG_GAP_S: Final = 0.002
+"""realtime: an all-poses message whose callback starts this soon after the last one ended was
+queued behind it (the robot is behind): it is kept, not decided."""
 ROBOT_ZENOH_RUNTIME: Final = (
     "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
     "acc: (handover: app), net: (handover: app))"
@@ -183,6 +189,9 @@ class Robot:
         self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
         self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
         self._in_flight = InFlight() if cfg.mode == "realtime" else None
+        self._poses_done = -math.inf  # when the last all-poses callback ended
+        self.backlog_skipped = 0
+        """realtime: all-poses messages left undecided because they waited behind another."""
         self._pose_sub: zenoh.Subscriber[None] | None = None
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
 
@@ -236,9 +245,16 @@ class Robot:
             sub.undeclare()  # type: ignore[no-untyped-call]
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
+        # realtime: a message that was waiting while the last one was handled is likely not
+        # the newest: deciding every message of a backlog would keep the robot behind
+        behind = (self._in_flight is not None
+                  and time.monotonic() - self._poses_done < BACKLOG_GAP_S)
         if self.inbox.take_batch(sample.payload.to_bytes(), notify=False):
-            if not self._decide_here():
+            if behind:
+                self.backlog_skipped += 1
+            elif not self._decide_here():
                 self.inbox.wake()
+        self._poses_done = time.monotonic()
 
     def _decide_here(self) -> bool:
         """Decide and send the step just received, on Zenoh's thread: no hand-over to the
@@ -474,6 +490,7 @@ def run(args: argparse.Namespace) -> int:
             f"after {st.steps} steps",
             dropped=st.dropped,
             errors=st.errors,
+            backlog_skipped=robot.backlog_skipped,
             heavy_modules=",".join(heavy) if heavy else "none",
         )
         return code
