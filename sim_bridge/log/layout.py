@@ -216,6 +216,9 @@ METRICS_SCHEMA: Final[dict[str, Any]] = {
                        "description": "robots that held still (no command within the bound)"},
         "guard_scaled": {"type": "integer",
                          "description": "commands the world's guard slowed down or stopped"},
+        "rate_hz": {"type": "number",
+                    "description": "realtime: the world's rate at the step (slower while "
+                                   "robots cannot keep up)"},
         "wall_ms": {"type": "number", "description": "wall time of the step (ms)"},
     },
     "required": ["step", "time_s", "n_live", "formation_error_m", "min_separation_m"],

@@ -73,6 +73,10 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                    help=f"step limit per pattern (default {DEFAULT_WORLD.step_limit})")
     p.add_argument("--rate-hz", type=float, default=1.0 / DEFAULT_WORLD.dt_s,
                    help="realtime step rate (default 1/dt = 10)")
+    p.add_argument("--min-rate-hz", type=float, default=None,
+                   help="realtime: while most robots cannot keep up, the world slows down "
+                        "to this rate at the slowest (default --rate-hz / 4; = --rate-hz: "
+                        "a fixed rate)")
     p.add_argument("--max-command-age-steps", type=int, default=None, metavar="K",
                    help="a robot without a command for the step in time moves on its newest "
                         "one if decided from the poses of the last K steps, else holds still "
@@ -116,6 +120,9 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
+    min_rate = getattr(args, "min_rate_hz", None)
+    if min_rate is not None and not (math.isfinite(min_rate) and 0 < min_rate <= args.rate_hz):
+        raise InputError(f"--min-rate-hz must be in (0, --rate-hz], got {min_rate}")
     age = getattr(args, "max_command_age_steps", None)
     if age is not None and not 0 <= age <= MAX_AGE_STEPS_LIMIT:
         raise InputError(f"--max-command-age-steps must be in 0..{MAX_AGE_STEPS_LIMIT}, "
@@ -124,7 +131,7 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
         step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
-        max_command_age_steps=age,
+        max_command_age_steps=age, min_rate_hz=min_rate,
     )
 
 

@@ -13,7 +13,12 @@ The world owns the truth (where every robot is) and the clock. Each step it
      is dropped and counted, and nothing ever waits longer than the deadline;
    * ``realtime``: one step every ``1 / rate_hz`` seconds on a fixed schedule
      (the world's own work comes out of the period); the commands for that step
-     that arrived before its tick are applied fresh;
+     that arrived before its tick are applied fresh. When most robots have no
+     command young enough to apply (:data:`HELD_SLOW_DOWN` of them, averaged
+     over a few steps: the machine cannot decide that fast), the world lengthens
+     its period, down to ``min_rate_hz``, and speeds up again as they catch up
+     (below :data:`HELD_SPEED_UP`): a swarm too big for its machine runs slower,
+     not frozen (each step's rate is on ``/world/metrics``);
 
    a robot whose command for the step is missing or late (a deadline miss) moves on
    its newest command if that is at most ``max_command_age_steps`` steps old
@@ -72,6 +77,14 @@ from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS, WorldLink
 from sim_bridge.world.world_log import Say, WorldLog
 
 DEFAULT_PATTERNS = "circle,cross,line,heart"
+HELD_SLOW_DOWN = 0.5
+"""realtime: above this share of robots held still (averaged), the world slows down."""
+HELD_SPEED_UP = 0.1
+"""realtime: below it, the world goes back toward ``rate_hz``."""
+HELD_AVERAGING = 0.2
+"""Weight of a step in the average of the held share."""
+SLOW_DOWN, SPEED_UP = 1.1, 1.02
+"""Factors on the period per step: slow down fast, speed up gently."""
 
 
 @dataclass
@@ -87,6 +100,9 @@ class SimConfig:
     first_step_deadline_ms: float = 5000.0
     max_steps: int = DEFAULT_WORLD.step_limit
     rate_hz: float = 1.0 / DEFAULT_WORLD.dt_s
+    min_rate_hz: float | None = None
+    """realtime: the slowest the world goes when robots cannot keep up (None: rate_hz / 4;
+    rate_hz: a fixed rate)."""
     brains: dict[str, BrainChoice] | None = None
     """Brain per pattern; None leaves the robots' brains alone."""
     wait_robots_s: float = 30.0
@@ -156,6 +172,9 @@ class SimWorld:
         self.stepping_wall_s = 0.0
         self.stepping_cpu_s = 0.0
         self._tick: float | None = None  # realtime: when the current step's period began
+        self.period_s = 1.0 / cfg.rate_hz
+        """realtime: the current period (longer than 1 / rate_hz while robots cannot keep up)."""
+        self._held_avg = 0.0
         self.overruns = 0
         """realtime: steps whose tick had passed before their poses went out."""
         patterns_at_n = [make_pattern(p, cfg.robots, self.w) for p in cfg.patterns]
@@ -226,6 +245,7 @@ class SimWorld:
                 contacts_total=self.physics.contacts_total,
                 stepping_cpu_s=round(self.stepping_cpu_s, 4),
                 stepping_wall_s=round(self.stepping_wall_s, 4), overruns=self.overruns,
+                rate_hz_end=round(1.0 / self.period_s, 3),
                 log_dropped=self.rec.dropped if self.rec is not None else 0)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
@@ -308,6 +328,8 @@ class SimWorld:
         if missed:  # stale commands and robots held still: no motion may close a pair in
             v, rows = guard_stale(pos, v, age, self.w, self.arena_m)
             scaled = [ids[k] for k in rows.tolist()]
+        if self.cfg.mode == "realtime":
+            self._adapt_rate(float(np.mean(age < 0)))
         res = self.physics.step(v)
         self.link.moved(ids, pos)
         self.step += 1
@@ -318,7 +340,8 @@ class SimWorld:
         ph.brain_ids.update(brains.get(r, "") for r in ids)
         self.journal.step_measures(m)
         self.journal.record_step(ph.index, ph.label, self.version, ph.steps, ids,
-                                 res.positions, ph.C, m, t_step)
+                                 res.positions, ph.C, m, t_step,
+                                 1.0 / self.period_s if self.cfg.mode == "realtime" else None)
         self.stepping_wall_s += time.monotonic() - t_step
         self.stepping_cpu_s += time.thread_time() - cpu_step
         if self.on_progress is not None:
@@ -326,10 +349,21 @@ class SimWorld:
                                       ph.steps, m.error_m, len(ids), ph.tally.deadline_misses))
         return True
 
+    def _adapt_rate(self, held_share: float) -> None:
+        """realtime: a longer period while most robots hold still for want of a command."""
+        a = HELD_AVERAGING
+        self._held_avg = (1 - a) * self._held_avg + a * held_share
+        cfg = self.cfg
+        slowest = 1.0 / (cfg.min_rate_hz if cfg.min_rate_hz is not None else cfg.rate_hz / 4)
+        if self._held_avg > HELD_SLOW_DOWN:
+            self.period_s = min(self.period_s * SLOW_DOWN, slowest)
+        elif self._held_avg < HELD_SPEED_UP:
+            self.period_s = max(self.period_s / SPEED_UP, 1.0 / cfg.rate_hz)
+
     def _deadline_s(self, first: bool) -> float:
         """How long a step waits for commands: longer at the start and after a join."""
         if self.cfg.mode != "lockstep":  # to the step's tick, on a fixed schedule
-            period = 1.0 / self.cfg.rate_hz
+            period = self.period_s
             now = time.monotonic()
             if self._tick is None or now > self._tick + period:
                 if self._tick is not None:

@@ -66,8 +66,9 @@ class WorldLog:
 
     def record_step(self, phase: int, pattern: str, version: int, phase_step: int,
                     ids: list[int], pos: Array, C: Array, m: StepMeasures,
-                    t_step: float) -> None:
-        """The step's metrics row and scene; ``pos`` (n, 2) in ``ids`` order, ``C`` (n, 2)."""
+                    t_step: float, rate_hz: float | None = None) -> None:
+        """The step's metrics row and scene; ``pos`` (n, 2) in ``ids`` order, ``C`` (n, 2);
+        ``rate_hz`` the realtime world's rate at the step."""
         if self.rec is None:
             return
         step = self._clock()
@@ -86,6 +87,7 @@ class WorldLog:
             "held_still": len(m.held),
             "guard_scaled": len(m.scaled),
             "wall_ms": round((time.monotonic() - t_step) * 1000.0, 3),
+            **({} if rate_hz is None else {"rate_hz": round(rate_hz, 3)}),
         }, now_ns)
         targets = centred(C) + pos.mean(axis=0)
         robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]

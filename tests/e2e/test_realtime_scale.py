@@ -82,6 +82,7 @@ def test_slowed_robots_form_on_stale_commands(procs: Any, tmp_path: Path, kit: A
     swarm, port, log = swarm_name("stale"), kit.free_port(), tmp_path / "stale.mcap"
     world = procs.world(swarm, port, "--robots", str(n), "--patterns", "circle",
                         "--seed", "11", "--mode", "realtime", "--max-steps", "400",
+                        "--min-rate-hz", "10",  # a fixed rate: the robots stay late
                         "--record", str(log), "--json", "--wait-robots-s", "120")
     for i in range(n):
         procs.robot(swarm, port, i, "--brain", GENERAL, "--mode", "realtime",

@@ -157,3 +157,26 @@ def test_lockstep_applies_no_stale_command_by_default() -> None:
     assert SimConfig(mode="lockstep").max_age_steps == 0
     assert SimConfig(mode="realtime").max_age_steps >= 1
     assert SimConfig(mode="realtime", max_command_age_steps=0).max_age_steps == 0
+
+
+def test_a_realtime_world_slows_down_while_its_robots_cannot_keep_up() -> None:
+    from sim_bridge.world.sim_world import SimConfig, SimWorld
+
+    world = SimWorld(SimConfig(mode="realtime", robots=4, patterns=["circle"]), None)  # type: ignore[arg-type]
+    assert world.period_s == pytest.approx(0.1)
+    for _ in range(5):
+        world._adapt_rate(0.3)  # some robots held: the rate stays
+    assert world.period_s == pytest.approx(0.1)
+    periods = []
+    for _ in range(60):  # most robots held: slower, down to a quarter of the rate
+        world._adapt_rate(1.0)
+        periods.append(world.period_s)
+    assert periods == sorted(periods) and periods[-1] == pytest.approx(0.4)
+    for _ in range(200):  # they caught up: back to the rate
+        world._adapt_rate(0.0)
+    assert world.period_s == pytest.approx(0.1)
+    fixed = SimWorld(SimConfig(mode="realtime", robots=4, patterns=["circle"],
+                               min_rate_hz=10.0), None)  # type: ignore[arg-type]
+    for _ in range(60):
+        fixed._adapt_rate(1.0)
+    assert fixed.period_s == pytest.approx(0.1)
