@@ -1,21 +1,33 @@
 """How many robot processes one machine runs in real time: the whole swarm, measured.
 
-Part 1, **realtime** (10 Hz, the deployment-like mode) with N = 10, 25, 50, 100 robot
-processes (``patternrl robot --mode realtime``, the shipped general brain, ORCA on) on
-loopback, the world in this process forming a circle (until formed or ``--max-steps``).
-Reported per N:
+Part 1, **realtime** (10 Hz) with N = 10, 25, 50, 100 robots, each N run two ways:
+
+* ``launch``: **what users run**, ``patternrl launch --robots N --patterns circle --mode
+  realtime --record RUN.mcap`` as a process of its own with the launcher's defaults: mutual
+  TLS with a key per process, Zenoh access control, the swarm's router above 20 robots,
+  the MCAP log recorded with its Foxglove scene every step, the general brain. Its figures
+  come from its ``--json`` line and its log (the world's ``run_end``: CPU of its stepping
+  thread); CPU per robot-step is every process of the run (the launcher, its world and
+  every child it waited for: robots, router) from the pattern's start (start-up left out);
+* ``open``: the same swarm open and unrecorded, as the figures before this one: the world
+  in this process (no recorder, no scene), open TCP on loopback, ``patternrl robot``
+  processes (ORCA on). Its CPU per robot-step is the robots' alone, start-up left out.
+
+Reported per run:
 
 * steps/s achieved against the 10 Hz target (steps / wall time of the phase);
-* late: the share of robot-steps whose command did not make its step (late or missing:
-  that robot held still for the step), and the world's overruns (steps whose tick had
-  passed before their poses went out);
-* pose -> command p50 / p99 (ms): from the world starting to publish a step's poses to
-  each command's arrival, over the commands that made their step;
-* CPU per robot per step (ms, user + system from /proc, start-up left out);
-* PSS per robot (MB, /proc/<pid>/smaps_rollup: shared libraries counted once across the
-  processes that share them) and RSS, median over the robots, read mid-run; start-up:
-  seconds from starting the processes to the first step (all N alive);
-* formed or not, steps, collisions (the world's swept check).
+* in time: the share of robot-steps decided in time (a command for the step before its
+  deadline); stale: moved on an older command (``--max-command-age-steps``); held: no
+  command young enough, held still; the oldest command applied; commands the world's
+  guard slowed; the world's overruns (steps whose tick had passed before their poses went
+  out);
+* pose -> command p50 / p99 (ms, ``open`` only): from the world starting to publish a
+  step's poses to each command's arrival, over the commands that made their step;
+* CPU per robot per step (ms) and the world's CPU per step (ms, its stepping thread);
+* PSS per robot (MB, ``open`` only, /proc/<pid>/smaps_rollup: shared libraries counted
+  once across the processes that share them) and RSS, median over the robots, read mid-run;
+  start-up: seconds from starting the processes to the first step (all N alive);
+* formed or not, steps against the lower bound, collisions (the world's swept check).
 
 Part 2, **lockstep** with N = 10 and 20 robot processes: steps/s and pose -> command
 p50 / p99 (the world waits for every command or the deadline).
@@ -37,7 +49,8 @@ of the same run): p50 and p99 in microseconds, with the machine's load average p
 beside them (run once on an idle machine and once busy to see both).
 
     .venv/bin/python benchmarks/swarm_scale.py [--json] [--quick] [--sizes 10,25,50,100]
-        [--topology router|peer] [--lockstep 10,20] [--no-decision]
+        [--configs launch,open] [--seed 0] [--topology router|peer] [--lockstep 10,20]
+        [--no-decision]
 """
 
 from __future__ import annotations
@@ -46,7 +59,11 @@ import argparse
 import json
 import os
 import platform
+import resource
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -186,11 +203,13 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0,
     cpu = sum(cpu_end[r] - at["cpu1"].get(r, 0.0) for r in cpu_end)
     lat = res.latencies_ms[n:]  # the first step waits for start-up
     return {
+        "config": "open", "seed": seed,
         "n": n, "mode": mode, "topology": topology, "steps": steps, "formed": ph.formed,
         "lower_bound_steps": ph.lower_bound_steps, "collisions": ph.collisions,
         "min_separation_m": ph.min_separation_m,
         "steps_per_s": round(steps / ph.wall_s, 2) if ph.wall_s > 0 else None,
-        "late_share": round(ph.deadline_misses / max(1, n * steps), 4),
+        **_timeliness(ph.deadline_misses, ph.stale_commands, ph.held_still, n, steps),
+        "command_age_max": ph.command_age_max, "guard_scaled": ph.guard_scaled,
         "late_commands": ph.late_commands, "world_overruns": world.overruns,
         "latency_ms_p50": _pct(lat, 50), "latency_ms_p99": _pct(lat, 99),
         "cpu_ms_per_robot_step": round(cpu * 1000.0 / max(1, n * (steps - 1)), 3),
@@ -202,6 +221,104 @@ def run_swarm(n: int, mode: str, max_steps: int, brain: str, seed: int = 0,
         "threads_per_robot": _pct(at.get("threads", []), 50),
         "router_cpu_ms_per_step": (round(router_cpu * 1000.0 / max(1, steps - 1), 3)
                                    if router_cpu is not None else None),
+        "load_average_1min": round(os.getloadavg()[0], 2),
+    }
+
+
+def _tree_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system, with waited-for children) of ``pid`` and its descendants."""
+    kids: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            kids.setdefault(ppid, []).append(int(d))
+    total, todo = 0.0, [pid]
+    tick = os.sysconf("SC_CLK_TCK")
+    while todo:
+        p = todo.pop()
+        todo += kids.get(p, [])
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                cols = f.read().rsplit(")", 1)[1].split()
+            total += sum(int(c) for c in cols[11:15]) / tick  # utime stime cutime cstime
+        except (OSError, ValueError, IndexError):
+            continue
+    return total
+
+
+def _timeliness(misses: int, stale: int, held: int, n: int, steps: int) -> dict[str, float]:
+    rs = max(1, n * steps)
+    return {"late_share": round(misses / rs, 4), "in_time_share": round(1 - misses / rs, 4),
+            "stale_share": round(stale / rs, 4), "held_share": round(held / rs, 4)}
+
+
+def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
+    """``patternrl launch`` with its defaults (TLS, router above 20, the log and its scene),
+    realtime, one circle (or ``max_steps``); figures from its JSON line and its log."""
+    from sim_bridge.log.reader import read_log
+
+    tmp = Path(tempfile.mkdtemp(prefix="swarm-scale-"))
+    rec = tmp / "run.mcap"
+    cmd = [sys.executable, "-c", "from patternrl.cli import main; raise SystemExit(main())",
+           "launch", "--robots", str(n), "--patterns", "circle", "--mode", "realtime",
+           "--seed", str(seed), "--max-steps", str(max_steps), "--record", str(rec),
+           "--json", "--no-plot", "--start-timeout-s", "300", "--verbose"]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.monotonic()
+    at_start: list[float] = []  # CPU of the run's processes when the pattern began
+    try:
+        out_file = open(tmp / "stdout", "w+")  # read back below
+        proc = subprocess.Popen(cmd, stdout=out_file, stderr=subprocess.PIPE, text=True,
+                                cwd=ROOT)
+        assert proc.stderr is not None
+        err: list[str] = []
+        for line in proc.stderr:  # the world says when the pattern begins: start-up is over
+            err.append(line)
+            if not at_start and "pattern 1/" in line:
+                at_start.append(_tree_cpu_s(proc.pid))
+        code = proc.wait(timeout=600 + 2 * max_steps)
+        out_file.seek(0)
+        stdout = out_file.read()
+        out_file.close()
+        wall = time.monotonic() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
+        if not lines:
+            raise RuntimeError(f"launch gave no result (exit {code}): {''.join(err)[-1500:]}")
+        res = json.loads(lines[-1])
+        run = read_log(rec)
+        (end,) = run.events_of("run_end") or [{}]
+        ages = [int(a) for e in run.events_of("stale_command") for a in e.get("ages", [])]
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    (ph,) = res["phases"]
+    steps = ph["steps"]
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    cpu -= at_start[0] if at_start else 0.0
+    return {
+        "config": "launch", "seed": seed, "n": n, "mode": "realtime",
+        "topology": "router" if n > 20 else "peer", "steps": steps, "formed": ph["formed"],
+        "lower_bound_steps": ph["lower_bound_steps"], "collisions": ph["collisions"],
+        "min_separation_m": ph["min_separation_m"],
+        "steps_per_s": round(steps / ph["wall_s"], 2) if ph["wall_s"] > 0 else None,
+        **_timeliness(ph["deadline_misses"], ph.get("stale_commands", 0),
+                      ph.get("held_still", ph["deadline_misses"]), n, steps),
+        "command_age_max": ph.get("command_age_max", 0),
+        "guard_scaled": ph.get("guard_scaled", 0), "late_commands": ph["late_commands"],
+        "stale_ages": {int(a): int(c) for a, c in zip(*np.unique(ages, return_counts=True),
+                                                       strict=True)},
+        "world_overruns": end.get("overruns"),
+        "latency_ms_p50": None, "latency_ms_p99": None,
+        "cpu_ms_per_robot_step": round(cpu * 1000.0 / max(1, n * steps), 3),
+        "world_cpu_ms_per_step": (round(end["stepping_cpu_s"] * 1000.0 / max(1, end["steps"]), 3)
+                                  if end.get("stepping_cpu_s") is not None else None),
+        "pss_mb_median": None, "rss_mb_median": None, "start_s": None,
+        "wall_s": round(wall, 1), "tcp_links": None, "threads_per_robot": None,
+        "router_cpu_ms_per_step": None, "exit": code,
         "load_average_1min": round(os.getloadavg()[0], 2),
     }
 
@@ -234,6 +351,10 @@ def main() -> int:
     ap.add_argument("--topology", choices=("auto", "router", "peer"), default="auto",
                     help="router: a Zenoh router, every process its client; peer: the peer "
                          "mesh; auto (default, as launch): peer up to 20 robots, router above")
+    ap.add_argument("--configs", default="launch,open",
+                    help="realtime runs per size: launch (patternrl launch's defaults: TLS, "
+                         "router, log, scene) and/or open (open, unrecorded; default both)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the start positions")
     ap.add_argument("--no-decision", action="store_true",
                     help="skip part 3 (one decision beside onnxruntime)")
     args = ap.parse_args()
@@ -246,10 +367,16 @@ def main() -> int:
     brain = load_brain(args.brain, W, None)
     decisions = ([] if args.no_decision
                  else [decision_figures(brain, n, samples) for n in (10, 50, 100)])
-    realtime = [run_swarm(n, "realtime", max_steps, args.brain, topology=args.topology)
-                for n in sizes]
-    lockstep = [run_swarm(n, "lockstep", max_steps, args.brain, topology=args.topology)
-                for n in lock]
+    configs = [c for c in args.configs.split(",") if c]
+    realtime = []
+    for n in sizes:
+        if "launch" in configs:
+            realtime.append(run_launch(n, max_steps, args.seed))
+        if "open" in configs:
+            realtime.append(run_swarm(n, "realtime", max_steps, args.brain, args.seed,
+                                      topology=args.topology))
+    lockstep = [run_swarm(n, "lockstep", max_steps, args.brain, args.seed,
+                          topology=args.topology) for n in lock]
     out = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "platform": platform.platform(), "load_average_1min_start": round(load0, 2),
@@ -264,25 +391,28 @@ def main() -> int:
     m = out["machine"]
     print(f"machine: {m['cpus']} cpus, python {m['python']}; 1-min load average "
           f"{m['load_average_1min_start']} at the start, {m['load_average_1min_end']} at the end")
-    print(f"\nrealtime, 10 Hz target, brain {out['brain']}, ORCA on, one circle "
-          f"(or {max_steps} steps), topology {args.topology}")
-    head = (f"{'robots':>6} {'steps/s':>7} {'late':>6} {'p50 ms':>7} {'p99 ms':>7} "
-            f"{'cpu ms/robot/step':>17} {'PSS MB':>6} {'RSS MB':>6} {'start s':>7} "
-            f"{'formed':>6} {'steps':>5} {'lb':>4} {'collisions':>10} {'links':>5} "
-            f"{'threads':>7} {'router ms/step':>14} {'load':>5} topology")
+    print(f"\nrealtime, 10 Hz target, one circle (or {max_steps} steps), seed {args.seed}; "
+          "launch: patternrl launch's defaults (mutual TLS, router above 20, log + scene); "
+          "open: open TCP, no log, no scene")
+    head = (f"{'config':<6} {'robots':>6} {'steps/s':>7} {'in time':>7} {'stale':>6} "
+            f"{'held':>6} {'age':>3} {'guard':>5} {'formed':>6} {'steps':>5} {'lb':>4} "
+            f"{'x lb':>5} {'coll':>4} {'cpu ms/robot/step':>17} {'world ms/step':>13} "
+            f"{'p50 ms':>7} {'p99 ms':>7} {'PSS MB':>6} {'start s':>7} {'load':>5} topology")
     print(head)
     for r in [*realtime, None, *lockstep]:
         if r is None:
             print("\nlockstep (the world waits for every command, deadline 250 ms)")
             print(head)
             continue
-        print(f"{r['n']:>6} {r['steps_per_s']:>7} {100 * r['late_share']:>5.1f}% "
-              f"{r['latency_ms_p50']!s:>7} {r['latency_ms_p99']!s:>7} "
-              f"{r['cpu_ms_per_robot_step']:>17.3f} {r['pss_mb_median']!s:>6} "
-              f"{r['rss_mb_median']!s:>6} {r['start_s']!s:>7} "
+        ratio = r["steps"] / r["lower_bound_steps"] if r["lower_bound_steps"] else float("nan")
+        print(f"{r['config']:<6} {r['n']:>6} {r['steps_per_s']!s:>7} "
+              f"{100 * r['in_time_share']:>6.1f}% {100 * r['stale_share']:>5.1f}% "
+              f"{100 * r['held_share']:>5.1f}% {r['command_age_max']:>3} {r['guard_scaled']:>5} "
               f"{'yes' if r['formed'] else 'no':>6} {r['steps']:>5} "
-              f"{r['lower_bound_steps']:>4} {r['collisions']:>10} {r['tcp_links']!s:>5} "
-              f"{r['threads_per_robot']!s:>7} {r['router_cpu_ms_per_step']!s:>14} "
+              f"{r['lower_bound_steps']:>4} {ratio:>5.2f} {r['collisions']:>4} "
+              f"{r['cpu_ms_per_robot_step']:>17.3f} {r['world_cpu_ms_per_step']!s:>13} "
+              f"{r['latency_ms_p50']!s:>7} {r['latency_ms_p99']!s:>7} "
+              f"{r['pss_mb_median']!s:>6} {r['start_s']!s:>7} "
               f"{r['load_average_1min']:>5} {r['topology']}")
     if not decisions:
         return 0

@@ -42,6 +42,7 @@ from runtime.wire.pose_batch import decode_positions
 __all__ = ["MAX_COORD_M", "PoseInbox", "Step"]
 
 MAX_COORD_M: Final = 1e6  # a pose farther from the origin is malformed (and would overflow costs)
+ARRIVALS_KEPT: Final = 16  # arrival times of the last all-poses messages (runtime.robot.in_flight)
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,7 @@ class PoseInbox:
         self._restart = False
         self._batch: Step | None = None  # the newest all-poses message holding this robot
         self._batch_step = -1  # its step (any batch, ours or not)
+        self._arrived: dict[int, float] = {}  # step -> when its batch came (the last few)
         self.batches = 0
         """All-poses messages taken (for status and tests)."""
         # the loop's, under cond
@@ -167,11 +169,26 @@ class PoseInbox:
                 if not (mine and s < self._batch_step):
                     return False  # a duplicate or out of order: the newer one is kept
                 self._restart = True  # our own step went back: the world restarted
+                self._arrived.clear()
             self._batch_step = s
+            self._arrived[s] = now
+            if len(self._arrived) > ARRIVALS_KEPT:
+                del self._arrived[min(self._arrived)]
             self._batch = Step(s, ids, xy) if mine else None
             if mine and notify:
                 self.cond.notify()
         return mine
+
+    def arrived(self, step: int) -> float | None:
+        """When the all-poses message of ``step`` came (``time.monotonic()``; None if it has
+        not, or long ago)."""
+        with self.cond:
+            return self._arrived.get(step)
+
+    @property
+    def newest_step(self) -> int:
+        """The newest step of an all-poses message heard (-1 before the first)."""
+        return self._batch_step
 
     def wake(self) -> None:
         """Wake the loop's wait in :meth:`next_step`."""

@@ -16,11 +16,14 @@ With the world's poses of a step in one message (``patternrl/<swarm>/poses``,
 what ``patternrl sim`` sends), both modes decide on each new step as soon as
 its message arrives, on the newest step only (:mod:`runtime.robot.inbox`).
 
-Late never means unsafe: a command carries the step whose poses it was decided
-from, and the world applies it to that step only; a command that misses its
-step's deadline is discarded and the robot holds still for that step (the
-world's rule, :mod:`sim_bridge.world.world_link`). A slow robot therefore costs
-progress, never separation.
+Late is slower, never unsafe: a command carries the step whose poses it was decided
+from. In realtime the world applies a late one for one step while it is at most a
+few steps old (the world's rule, :mod:`sim_bridge.world.world_link`, guarded by
+:mod:`sim_bridge.world.stale_guard`); the robot decides from where its own late
+commands will have taken it (:mod:`runtime.robot.in_flight`). A robot that falls
+behind -- all-poses messages queued while it decided -- lets those go undecided
+until the newest, and decides on the next one that did not wait behind another
+(:meth:`Robot._on_poses`): a backlog drains instead of growing.
 
 Nothing waits on another robot's decision. Every decision goes through the
 :class:`runtime.decision.controller.Controller`: shared assignment, the observation the
@@ -97,6 +100,7 @@ from runtime.errors import InputError
 from runtime.log import Log, one_line
 from runtime.net.session import ZenohSetupError, direct, open_session_from_args
 from runtime.robot.cli import FALLBACK_RULE, RobotConfig, add_arguments, config_from_args
+from runtime.robot.in_flight import InFlight
 from runtime.robot.inbox import PoseInbox, Step
 from runtime.robot.status import RobotStats
 from runtime.robot.swap_worker import SwapReply, SwapWorker
@@ -120,6 +124,9 @@ __all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
 
 HEAVY_MODULES: Final = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
 IDLE_WAKE_S: Final = 0.2  # the loop looks at status, watchdog and stop at least this often
+BACKLOG_GAP_S: Final = 0.002
+"""realtime: an all-poses message whose callback starts this soon after the last one ended was
+queued behind it (the robot is behind): it is kept, not decided."""
 ROBOT_ZENOH_RUNTIME: Final = (
     "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
     "acc: (handover: app), net: (handover: app))"
@@ -198,6 +205,10 @@ class Robot:
         self._first_cmd_logged = False
         self._zenoh = contextlib.ExitStack()  # declarations, undeclared in reverse order
         self._delay_rng = random.Random(cfg.robot_id)  # --debug-delay-ms only
+        self._in_flight = InFlight() if cfg.mode == "realtime" else None
+        self._poses_done = -math.inf  # when the last all-poses callback ended
+        self.backlog_skipped = 0
+        """realtime: all-poses messages left undecided because they waited behind another."""
         self._pose_sub: zenoh.Subscriber[None] | None = None
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
         self._ros2: Ros2Link | None = None  # --ros2: the pose from ROS 2, the command to it
@@ -260,9 +271,16 @@ class Robot:
             sub.undeclare()  # type: ignore[no-untyped-call]
 
     def _on_poses(self, sample: zenoh.Sample) -> None:
+        # realtime: a message that was waiting while the last one was handled is likely not
+        # the newest: deciding every message of a backlog would keep the robot behind
+        behind = (self._in_flight is not None
+                  and time.monotonic() - self._poses_done < BACKLOG_GAP_S)
         if self.inbox.take_batch(sample.payload.to_bytes(), notify=False):
-            if not self._decide_here():
+            if behind:
+                self.backlog_skipped += 1
+            elif not self._decide_here():
                 self.inbox.wake()
+        self._poses_done = time.monotonic()
 
     def _decide_here(self) -> bool:
         """Decide and send the step just received, on Zenoh's thread: no hand-over to the
@@ -378,11 +396,18 @@ class Robot:
             d = _still(why)
         else:
             try:
-                i = step.ids.index(self.id)
+                me = step.ids.index(self.id)
+                positions = step.positions
+                if self._in_flight is not None:  # where its late commands take it meanwhile
+                    dx, dy = self._in_flight.displacement(step.step, self.inbox.arrived,
+                                                          self.world.dt_s)
+                    if dx or dy:
+                        positions = positions.copy()
+                        positions[me] += (dx, dy)
                 seen: tuple[Array, Array | None, Array | None] = (
-                    (step.positions, None, None) if self._perception is None
-                    else self._perceive(step))
-                d = self.controller.decide(i, seen[0], pattern, step.step, seen[2], seen[1])
+                    (positions, None, None) if self._perception is None
+                    else self._perceive(step, positions))
+                d = self.controller.decide(me, seen[0], pattern, step.step, seen[2], seen[1])
                 if d.error == ERR_NONFINITE:
                     d = self._nonfinite(step, pattern, d, seen)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
@@ -403,12 +428,13 @@ class Robot:
         self._perceived = None
         return Perception(c, np.array([index]), [seed], self.cfg.estimator, self.world)
 
-    def _perceive(self, step: Step) -> tuple[Array, Array | None, Array | None]:
-        """This step's team as the robot perceives it: sensed once per world step (a repeated
-        step in realtime reuses it, so latency counts world steps)."""
+    def _perceive(self, step: Step, positions: Array) -> tuple[Array, Array | None, Array | None]:
+        """This step's team (``positions``, the poses of ``step``) as the robot perceives it:
+        sensed once per world step (a repeated step in realtime reuses it, so latency counts
+        world steps)."""
         assert self._perception is not None
         if self._perceived is None or self._perceived[0] != step.step:
-            plan, now, vel = self._perception.perceive(np.asarray(step.positions)[None])
+            plan, now, vel = self._perception.perceive(np.asarray(positions)[None])
             self._perceived = (step.step, (plan[0], None if now is None else now[0],
                                            None if vel is None else vel[0]))
         return self._perceived[1]
@@ -439,6 +465,9 @@ class Robot:
 
     def _send(self, step: int, d: Decision) -> None:
         self._publish_cmd(step, d)
+        if self._in_flight is not None:
+            self._in_flight.sent(step, d.velocity[0], d.velocity[1], time.monotonic(),
+                                 self.inbox.newest_step)
         t = self.stats.decided(step, d.decision_us, d.safety_changed)
         if not self._first_cmd_logged:
             self._first_cmd_logged = True
@@ -448,6 +477,8 @@ class Robot:
     def _hold_still(self, why: str) -> None:
         self._holding = True
         self.controller.reset()
+        if self._in_flight is not None:
+            self._in_flight.reset()
         self._team_ids = []
         self.stats.error(f"watchdog: {why}", count=False)
         self.log("warning", "watchdog", why)
@@ -546,6 +577,7 @@ def run(args: argparse.Namespace) -> int:
             f"after {st.steps} steps",
             dropped=st.dropped,
             errors=st.errors,
+            backlog_skipped=robot.backlog_skipped,
             heavy_modules=",".join(heavy) if heavy else "none",
         )
         return code

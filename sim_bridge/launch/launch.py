@@ -378,7 +378,7 @@ def run(args: argparse.Namespace) -> int:
         live: FoxgloveLive | None = None
         try:
             live = start_live(args.foxglove, say)
-            rec = Recorder(record, live=live)
+            rec = Recorder(record, live=live, threaded=True)  # writing off the world's path
         except InputError as e:
             if live is not None:
                 live.close()

@@ -56,9 +56,13 @@ phase's results: formed, steps, lower bounds, travel, collisions, min separation
 deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
 ``leave``, ``collision`` (robot pairs that overlapped during the step),
 ``contact`` (pairs the physics saw start touching, walls included),
-``deadline_miss`` (robots that had not answered step ``for_step`` in time), ``malformed``
+``deadline_miss`` (robots that had not answered step ``for_step`` in time),
+``stale_command`` (of those, the robots that moved on an older command, and each
+command's ``ages``: steps between its poses and ``for_step``), ``stale_guard`` (robots
+whose applied command the world's guard slowed down at ``for_step``), ``malformed``
 (a payload that did not decode), ``payload_refused`` (key and bytes of a payload over
-the size limit, not written), ``run_end`` (outcome).
+the size limit, not written), ``run_end`` (outcome), ``log_dropped`` (messages the
+recorder's writer could not keep up with and dropped, counted, at the end).
 
 ``/world/scene``: one ``foxglove.SceneUpdate`` per step, frame ``world``: an
 entity per robot (entity id = the robot id, a cylinder of diameter 2R at its
@@ -179,7 +183,8 @@ EVENT_SCHEMA: Final[dict[str, Any]] = {
     "type": "object",
     "properties": {
         "kind": {"type": "string", "description": "run_start, pattern, phase_start, phase_end, "
-                 "brain_swap, join, leave, collision, contact, deadline_miss, malformed, "
+                 "brain_swap, join, leave, collision, contact, deadline_miss, stale_command, "
+                 "stale_guard, malformed, log_dropped, "
                  "payload_refused, run_end"},
         "step": {"type": "integer", "description": "world step when it happened"},
         "time_s": {"type": "number", "description": "simulated time, step * dt (s)"},
@@ -204,7 +209,19 @@ METRICS_SCHEMA: Final[dict[str, Any]] = {
         "min_separation_m": {"type": "number"},
         "collisions": {"type": "integer", "description": "robot pairs overlapping this step"},
         "contacts": {"type": "integer", "description": "contacts the physics saw begin"},
-        "deadline_misses": {"type": "integer", "description": "robots that held still"},
+        "deadline_misses": {"type": "integer",
+                            "description": "robots without a command for the step in time"},
+        "stale_commands": {"type": "integer",
+                           "description": "of those, robots that moved on an older command"},
+        "command_age_max": {"type": "integer",
+                            "description": "oldest command applied (steps since its poses)"},
+        "held_still": {"type": "integer",
+                       "description": "robots that held still (no command within the bound)"},
+        "guard_scaled": {"type": "integer",
+                         "description": "commands the world's guard slowed down or stopped"},
+        "rate_hz": {"type": "number",
+                    "description": "realtime: the world's rate at the step (slower while "
+                                   "robots cannot keep up)"},
         "wall_ms": {"type": "number", "description": "wall time of the step (ms)"},
     },
     "required": ["step", "time_s", "n_live", "formation_error_m", "min_separation_m"],

@@ -9,9 +9,9 @@ phase's last one published at a step <= s.
 From the events, each phase also gets the world's own ``phase_start`` and
 ``phase_end`` (kept to be compared with the recomputation), the robots that
 joined and left, its brain swaps (a swap logged between two phases belongs to
-the next one, as the world swaps before it publishes a pattern) and its deadline
-misses. Nothing here is recomputed from the poses: that is
-:mod:`sim_bridge.log.report`.
+the next one, as the world swaps before it publishes a pattern), its deadline
+misses, the age of each stale command applied and the guard's interventions.
+Nothing here is recomputed from the poses: that is :mod:`sim_bridge.log.report`.
 """
 
 from __future__ import annotations
@@ -53,6 +53,10 @@ class PhaseLog:
     lost: list[int] = field(default_factory=list)
     swaps: list[dict[str, Any]] = field(default_factory=list)
     deadline_misses: int = 0
+    stale_ages: list[int] = field(default_factory=list)
+    """Age (steps) of every stale command applied (``stale_command`` events; none in logs
+    written before the world applied them)."""
+    guard_scaled: int = 0
 
     def pattern_rows(self, steps: IntArray) -> IntArray:
         """Index into :attr:`patterns` of the pattern in force at each of ``steps``."""
@@ -94,6 +98,12 @@ def _from_events(events: list[dict[str, Any]], world: WorldConfig) -> list[Phase
         elif cur is not None and kind == "deadline_miss":
             robots = e.get("robots", [])
             cur.deadline_misses += len(robots) if isinstance(robots, list) else 0
+        elif cur is not None and kind == "stale_command":
+            ages = e.get("ages", [])
+            cur.stale_ages += [as_int(a) for a in ages] if isinstance(ages, list) else []
+        elif cur is not None and kind == "stale_guard":
+            robots = e.get("robots", [])
+            cur.guard_scaled += len(robots) if isinstance(robots, list) else 0
     return phases
 
 

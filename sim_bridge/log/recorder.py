@@ -11,11 +11,20 @@ the writer is flushed at least every ``flush_period_s``, so a writer killed with
 SIGKILL leaves a file that :mod:`sim_bridge.log.reader` reads up to its last
 complete chunk. A finished log also has the summary section and reads with any
 reader.
+
+Off the caller's path: with ``threaded`` the recorder hands every message to a writer
+thread through a bounded queue (:data:`QUEUE_ITEMS`), so the world's step and Zenoh's
+receive callbacks only stamp and queue it; decoding, encoding, compressing, writing and
+the live view happen on the writer. A full queue drops the message and counts it
+(:attr:`Recorder.dropped`; a ``log_dropped`` event at the end says how many): the log
+is never silently short. :meth:`Recorder.flush` and :meth:`Recorder.close` wait for the
+writer to have written everything queued before them.
 """
 
 from __future__ import annotations
 
 import json
+import queue
 import struct
 import threading
 import time
@@ -65,6 +74,8 @@ MALFORMED_BYTES_KEPT: Final = 256
 """Of a payload that did not decode, the first bytes kept on ``/log/other``."""
 REFUSED_EVENTS: Final = 100
 """Refused payloads logged one by one as events; the count goes on."""
+QUEUE_ITEMS: Final = 200_000
+"""``threaded``: messages waiting for the writer at most (about 900 steps of 100 robots)."""
 
 @dataclass(frozen=True)
 class SimTime:
@@ -150,6 +161,8 @@ class Recorder:
         overwrite: bool = True,
         sim_time: SimTime | None = None,
         wire_layout: bool = False,
+        threaded: bool = False,
+        queue_items: int = QUEUE_ITEMS,
     ) -> None:
         self.path = Path(path) if path is not None else None
         self._file: IO[bytes] | None = None
@@ -190,6 +203,51 @@ class Recorder:
             self._file.flush()  # the header is on disk before anything else happens
         for topic, schema in JSON_TOPICS:
             self._json_channel(topic, schema)
+        self.dropped = 0
+        """``threaded``: messages not written because the writer's queue was full"""
+        self.writer_errors = 0
+        """``threaded``: messages whose writing raised (the writer goes on)"""
+        self._clock_ns: int | None = None  # the writer's item: when it was queued
+        self._queue: queue.Queue[tuple[Callable[..., None], tuple[Any, ...], int] | None] | None
+        self._queue = None
+        self._thread: threading.Thread | None = None
+        self._drop_lock = threading.Lock()
+        if threaded:
+            self._queue = queue.Queue(maxsize=queue_items)
+            self._thread = threading.Thread(target=self._write_queued, name="recorder-writer",
+                                            daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ the writer thread
+
+    def _queue_call(self, fn: Callable[..., None], *args: Any) -> None:
+        assert self._queue is not None
+        try:
+            self._queue.put_nowait((fn, args, time.time_ns()))
+        except queue.Full:
+            with self._drop_lock:
+                self.dropped += 1
+
+    def _write_queued(self) -> None:
+        assert self._queue is not None
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            fn, args, self._clock_ns = item
+            try:
+                fn(*args)
+            except Exception:  # one message lost, counted; the writer goes on
+                self.writer_errors += 1
+            finally:
+                self._clock_ns = None
+
+    def _wait_writer(self) -> None:
+        """Return once the writer has written everything queued before this call."""
+        done = threading.Event()
+        assert self._queue is not None
+        self._queue.put((lambda: done.set(), (), time.time_ns()))
+        done.wait(timeout=60.0)
 
     # ------------------------------------------------------------------ channels
 
@@ -244,10 +302,10 @@ class Recorder:
         """``log_time`` of a message of ``step`` (None: now): simulated with
         :attr:`sim_time`, else the wall clock (ns)."""
         st = self.sim_time
-        return time.time_ns() if st is None else st.at(step)
+        return (self._clock_ns or time.time_ns()) if st is None else st.at(step)
 
     def _add(self, channel_id: int, data: bytes, log_time_ns: int | None) -> None:
-        wall = time.time_ns()
+        wall = self._clock_ns or time.time_ns()
         t = (wall if self.sim_time is None else self.sim_time.at(None)) if log_time_ns is None \
             else log_time_ns
         self._writer.add_message(channel_id=channel_id, log_time=t, data=data, publish_time=wall)
@@ -261,6 +319,14 @@ class Recorder:
 
     def write_wire(self, key: str, payload: bytes, log_time_ns: int | None = None) -> None:
         """Record a Zenoh payload on ``key`` as its protobuf message (see the module)."""
+        if self._queue is None:
+            self._write_wire(key, payload, log_time_ns)
+            return
+        if log_time_ns is None and self.sim_time is None:  # stamped on arrival, not on writing
+            log_time_ns = time.time_ns()
+        self._queue_call(self._write_wire, key, bytes(payload), log_time_ns)
+
+    def _write_wire(self, key: str, payload: bytes, log_time_ns: int | None = None) -> None:
         payload = bytes(payload)
         k = keys.parse_key(key)
         kind = "" if k is None else k.kind
@@ -308,7 +374,7 @@ class Recorder:
         n = len(b.robot_ids)
         for rid, (x, y), (vx, vy) in zip(b.robot_ids.tolist(), b.xy.tolist(), b.v.tolist(),
                                          strict=True):
-            self.write_wire(keys.pose_key(swarm, rid),
+            self._write_wire(keys.pose_key(swarm, rid),
                             encode_pose(Pose(rid, b.step, b.time_s, x, y, vx, vy, n)),
                             log_time_ns)
         return True
@@ -348,6 +414,12 @@ class Recorder:
 
     def end_step(self) -> None:
         """The step is complete: write its ``/tf`` now rather than at the next step's first pose."""
+        if self._queue is not None:
+            self._queue_call(self._end_step)
+        else:
+            self._end_step()
+
+    def _end_step(self) -> None:
         with self._lock:
             if not self._closed:
                 self._write_tf()
@@ -372,6 +444,13 @@ class Recorder:
 
     def write_json(self, topic: str, obj: dict[str, Any], log_time_ns: int | None = None) -> None:
         """Record one JSON object on one of the ``/world/*`` topics."""
+        if self._queue is None:
+            self._write_json(topic, obj, log_time_ns)
+        else:
+            self._queue_call(self._write_json, topic, obj,
+                             self.log_time() if log_time_ns is None else log_time_ns)
+
+    def _write_json(self, topic: str, obj: dict[str, Any], log_time_ns: int | None) -> None:
         data = json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
         with self._lock:
             if self._closed:
@@ -393,13 +472,21 @@ class Recorder:
         already encoded (:func:`sim_bridge.live.scene.scene_json`)."""
         if isinstance(update, dict):
             self.write_json(SCENE_TOPIC, update, log_time_ns)
-            return
+        elif self._queue is not None:
+            self._queue_call(self._scene, update,
+                             self.log_time() if log_time_ns is None else log_time_ns)
+        else:
+            self._scene(update, log_time_ns)
+
+    def _scene(self, update: bytes, log_time_ns: int | None) -> None:
         with self._lock:
             if not self._closed:
                 self._add(self._channels[SCENE_TOPIC], update, log_time_ns)
 
     def flush(self) -> None:
         """Finish the chunk in progress and push everything to the file."""
+        if self._queue is not None and self._thread is not None and self._thread.is_alive():
+            self._wait_writer()
         with self._lock:
             if not self._closed:
                 self._write_tf()
@@ -407,7 +494,17 @@ class Recorder:
                 self._last_flush_ns = time.monotonic_ns()
 
     def close(self) -> None:
-        """Write the summary section and close the file."""
+        """Write what is queued, the summary section, and close the file."""
+        thread, self._thread = self._thread, None
+        if thread is not None and self._queue is not None:
+            self._queue.put(None)  # after everything queued before
+            thread.join()
+        self._queue = None
+        if self.dropped or self.writer_errors:  # never silently short
+            st = self.sim_time
+            step = 0 if st is None else st.current_step()
+            self.event("log_dropped", step, 0.0 if st is None else step * st.dt_ns / 1e9,
+                       dropped=self.dropped, writer_errors=self.writer_errors)
         with self._lock:
             if self._closed:
                 return

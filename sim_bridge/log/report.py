@@ -86,6 +86,12 @@ class PhaseReport:
     final_error_m: float | None
     deadline_misses: int
     commands_missing: int
+    stale_commands: int
+    """Deadline misses on which the robot moved on an older command (the world's events)."""
+    command_ages: dict[int, int]
+    """Age in steps -> stale commands applied that old (age 0, the fresh ones, left out)."""
+    guard_scaled: int
+    """Commands the world's guard slowed down or stopped."""
     safety_interventions: int
     brains: dict[str, int]
     """brain id -> commands it decided in this phase"""
@@ -336,6 +342,10 @@ def _phase_report(data: LogData, ph: PhaseLog, end_step: int, complete: bool,
         travel_per_robot_m=travel, collisions=collisions,
         min_separation_m=_r(min_sep), final_error_m=_r(float(err[last])) if len(rows) else None,
         deadline_misses=ph.deadline_misses, commands_missing=missing,
+        stale_commands=len(ph.stale_ages),
+        command_ages={int(a): int(c) for a, c in zip(*np.unique(
+            np.asarray(ph.stale_ages, np.int64), return_counts=True), strict=True)},
+        guard_scaled=ph.guard_scaled,
         safety_interventions=interventions, brains=brains,
         swaps_accepted=len(accepted), swaps_refused=len(ph.swaps) - len(accepted) - unchanged,
         swaps_unchanged=unchanged,

@@ -48,6 +48,14 @@ def recovery_line(r: RunReport) -> str:
             f"{rec.bytes_read} of {rec.file_bytes} bytes; {rec.error}")
 
 
+def _stale(ph: PhaseReport) -> str:
+    """Stale commands applied and how old: ``12 (1:10 2:2)``."""
+    if not ph.stale_commands:
+        return "0"
+    ages = " ".join(f"{a}:{c}" for a, c in sorted(ph.command_ages.items()))
+    return f"{ph.stale_commands} ({ages})"
+
+
 def format_report(r: RunReport) -> str:
     """The terminal report: run facts, one row per phase, travel per robot."""
     out = [f"{r.path}: {r.mode}, {len(r.robots)} robots, {len(r.phases)} phases, "
@@ -61,7 +69,8 @@ def format_report(r: RunReport) -> str:
         out.append("no pattern phase in the log")
         return "\n".join(out)
     header = ["#", "pattern", "n", "formed", "steps", "lb", "x lb", "travel m", "lb m", "x lb",
-              "coll", "min sep m", "final err m", "misses", "swaps", "joined", "lost", "brains"]
+              "coll", "min sep m", "final err m", "misses", "stale (ages)", "guard", "swaps",
+              "joined", "lost", "brains"]
     rows = []
     for ph in r.phases:
         formed = "yes" if ph.formed else ("no" if ph.complete else "cut")
@@ -70,12 +79,12 @@ def format_report(r: RunReport) -> str:
             "-" if ph.lower_bound_steps is None else str(ph.lower_bound_steps),
             _f(ph.steps_ratio), _f(ph.travel_m), _f(ph.lower_bound_travel_m), _f(ph.travel_ratio),
             str(ph.collisions), _f(ph.min_separation_m, 3), _f(ph.final_error_m, 4),
-            str(ph.deadline_misses),
+            str(ph.deadline_misses), _stale(ph), str(ph.guard_scaled),
             f"{ph.swaps_accepted}" + (f" ({ph.swaps_refused} refused)" if ph.swaps_refused else ""),
             _ids(ph.joined), _ids(ph.lost),
             ",".join(_short_brain(b) for b in sorted(ph.brains)) or "-",
         ])
-    out += ["", *table(header, rows, {0, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13})]
+    out += ["", *table(header, rows, {0, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15})]
     ids = sorted({rid for ph in r.phases for rid in ph.travel_per_robot_m})
     if ids:
         header = ["robot", *[f"{ph.index}:{ph.pattern}" for ph in r.phases], "total m"]

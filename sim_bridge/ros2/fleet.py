@@ -45,7 +45,7 @@ from sim_bridge.ros2.scene import (
     odom_topic,
     robot_ns,
 )
-from sim_bridge.world.world_link import WorldLink
+from sim_bridge.world.world_link import Collected, WorldLink
 
 __all__ = ["CMD_TIMEOUT_S", "DiffDriveBases", "Ros2FleetLink"]
 
@@ -276,8 +276,9 @@ class Ros2FleetLink(WorldLink):
     def exchange(
         self, step: int, dt_s: float, ids: list[int], pos: Array, deadline_s: float,
         stop: threading.Event,
-    ) -> tuple[Array, list[int]]:
-        """Odom out, then at the step's tick the newest Twist of each base: its velocity."""
+    ) -> Collected:
+        """Odom out, then at the step's tick the newest Twist of each base: its velocity (age
+        0; a base without a Twist in time holds still, age -1)."""
         with self.cond:
             self._exchanges += 1
         t0 = time.monotonic()
@@ -290,7 +291,8 @@ class Ros2FleetLink(WorldLink):
                     cmd = Command(rid, step, float(v[k, 0]), float(v[k, 1]), TWIST_BRAIN_ID,
                                   False, 0.0, 0.0, float(v[k, 0]), float(v[k, 1]))
                     self.rec.write_wire(keys.cmd_key(self.swarm, rid), encode_command(cmd))
-        return v, missed
+        age = np.array([0 if rid in applied else -1 for rid in ids], dtype=np.int64)
+        return Collected(v, missed, age)
 
     def close(self) -> None:
         super().close()

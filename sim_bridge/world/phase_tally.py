@@ -23,7 +23,7 @@ from runtime.decision.formation import (
     min_separation,
     slot_distances,
 )
-from runtime.types import Array
+from runtime.types import Array, IntArray
 from runtime.world_config import WorldConfig
 
 Pair = tuple[int, int]
@@ -55,7 +55,13 @@ class StepMeasures(NamedTuple):
     new_contacts: list[tuple[int | str, int | str]]
     """Physics contacts that started this step (robot ids or "wall")."""
     missed: list[int]
-    """Robots that gave no command for the step."""
+    """Robots that gave no command for the step before its deadline."""
+    stale: list[tuple[int, int]]
+    """Of those, (robot, age in steps) of the ones that moved on an older command."""
+    held: list[int]
+    """Of those, the robots that held still (no command within the age bound)."""
+    scaled: list[int]
+    """Robots whose command the world's guard slowed down or stopped."""
 
 
 @dataclass
@@ -66,6 +72,10 @@ class PhaseTally:
     collisions: int = 0
     contacts: int = 0
     deadline_misses: int = 0
+    stale_commands: int = 0
+    held_still: int = 0
+    command_age_max: int = 0
+    guard_scaled: int = 0
     joins: int = 0
     leaves: int = 0
     min_separation_m: float = math.inf
@@ -82,8 +92,11 @@ class PhaseTally:
 
     def step(self, ids: list[int], pos: Array, new_pos: Array, C: Array,
              new_contacts: list[tuple[int | str, int | str]], missed: list[int],
-             world: WorldConfig) -> StepMeasures:
-        """Fold in a step from ``pos`` to ``new_pos`` ((n, 2) metres in ``ids`` order)."""
+             world: WorldConfig, age: IntArray | None = None,
+             scaled: list[int] | None = None) -> StepMeasures:
+        """Fold in a step from ``pos`` to ``new_pos`` ((n, 2) metres in ``ids`` order);
+        ``age`` (n,) of the commands applied (0 fresh, k stale, -1 none; None: all of the
+        missed held still), ``scaled`` the robots the guard slowed."""
         self.travel_m += float(np.linalg.norm(new_pos - pos, axis=1).sum())
         pairs = {(ids[a], ids[b]) for a, b in collision_pairs(pos, new_pos, world)}
         new_pairs = sorted(pairs - self._colliding)
@@ -91,8 +104,18 @@ class PhaseTally:
         self.collisions += len(new_pairs)
         self.contacts += len(new_contacts)
         self.deadline_misses += len(missed)
+        stale: list[tuple[int, int]] = []
+        held = list(missed)
+        if age is not None and missed:
+            a = age.tolist()
+            stale = [(r, k) for r, k in zip(ids, a, strict=True) if k > 0]
+            held = [r for r, k in zip(ids, a, strict=True) if k < 0]
+        self.stale_commands += len(stale)
+        self.held_still += len(held)
+        self.command_age_max = max([self.command_age_max, *(k for _, k in stale)])
+        self.guard_scaled += len(scaled or [])
         sep = float(min_separation(new_pos)) if len(ids) > 1 else math.inf
         self.min_separation_m = min(self.min_separation_m, sep)
         self.error_m, self.far_m = formation_measure(new_pos, C)
         return StepMeasures(self.error_m, self.far_m, sep, len(pairs), new_pairs,
-                            new_contacts, missed)
+                            new_contacts, missed, stale, held, list(scaled or []))

@@ -36,6 +36,14 @@ class PhaseResult:
     start_step: int
     end_step: int
     wall_s: float
+    stale_commands: int = 0
+    """Deadline misses on which the robot moved on an older command (<= the age bound)."""
+    held_still: int = 0
+    """Deadline misses on which the robot held still (no command within the age bound)."""
+    command_age_max: int = 0
+    """The oldest command applied (steps since its poses)."""
+    guard_scaled: int = 0
+    """Commands the world's guard slowed down or stopped (:mod:`sim_bridge.world.stale_guard`)."""
 
 
 @dataclass

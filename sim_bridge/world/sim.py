@@ -49,6 +49,10 @@ from sim_bridge.log.recorder import Recorder, check_output
 from sim_bridge.world.brain_choice import BrainChoice, brains_from_arg
 from sim_bridge.world.run_results import RunResult, result_dict
 from sim_bridge.world.sim_world import DEFAULT_PATTERNS, SimConfig, SimWorld
+from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS
+
+MAX_AGE_STEPS_LIMIT = 50
+"""The largest --max-command-age-steps accepted (5 s at 10 Hz)."""
 
 # --------------------------------------------------------------------------- CLI
 
@@ -75,6 +79,14 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                    help=f"step limit per pattern (default {DEFAULT_WORLD.step_limit})")
     p.add_argument("--rate-hz", type=float, default=1.0 / DEFAULT_WORLD.dt_s,
                    help="realtime step rate (default 1/dt = 10)")
+    p.add_argument("--min-rate-hz", type=float, default=None,
+                   help="realtime: while most robots cannot keep up, the world slows down "
+                        "to this rate at the slowest (default --rate-hz / 4; = --rate-hz: "
+                        "a fixed rate)")
+    p.add_argument("--max-command-age-steps", type=int, default=None, metavar="K",
+                   help="a robot without a command for the step in time moves on its newest "
+                        "one if decided from the poses of the last K steps, else holds still "
+                        f"(default: {DEFAULT_MAX_AGE_STEPS} in realtime, 0 in lockstep)")
     p.add_argument("--brain-kind", choices=("general", "paper"), default="general",
                    help="with a brains directory, which observation to prefer (default general)")
     p.add_argument("--conditions", default="perfect",
@@ -132,12 +144,20 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
 
         import_rclpy()
     conditions = parse_conditions(getattr(args, "conditions", "perfect"))
+    min_rate = getattr(args, "min_rate_hz", None)
+    if min_rate is not None and not (math.isfinite(min_rate) and 0 < min_rate <= args.rate_hz):
+        raise InputError(f"--min-rate-hz must be in (0, --rate-hz], got {min_rate}")
+    age = getattr(args, "max_command_age_steps", None)
+    if age is not None and not 0 <= age <= MAX_AGE_STEPS_LIMIT:
+        raise InputError(f"--max-command-age-steps must be in 0..{MAX_AGE_STEPS_LIMIT}, "
+                         f"got {age}")
     return SimConfig(
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
         step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
         conditions=conditions,
         ros2=bool(getattr(args, "ros2", False)),
+        max_command_age_steps=age, min_rate_hz=min_rate,
     )
 
 
@@ -155,7 +175,7 @@ def open_recorder(args: argparse.Namespace, live: FoxgloveLive | None) -> Record
     """The recorder of ``--record`` and/or ``--foxglove``; :class:`InputError` for a bad path."""
     if args.record is None and live is None:
         return None
-    return Recorder(args.record, live=live, overwrite=bool(args.force))
+    return Recorder(args.record, live=live, overwrite=bool(args.force), threaded=True)
 
 
 def run(args: argparse.Namespace) -> int:

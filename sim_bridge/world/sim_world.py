@@ -13,11 +13,20 @@ The world owns the truth (where every robot is) and the clock. Each step it
      is dropped and counted, and nothing ever waits longer than the deadline;
    * ``realtime``: one step every ``1 / rate_hz`` seconds on a fixed schedule
      (the world's own work comes out of the period); the commands for that step
-     that arrived before its tick are applied, nothing older;
+     that arrived before its tick are applied fresh. When most robots have no
+     command young enough to apply (:data:`HELD_SLOW_DOWN` of them, averaged
+     over a few steps: the machine cannot decide that fast), the world lengthens
+     its period, down to ``min_rate_hz``, and speeds up again as they catch up
+     (below :data:`HELD_SPEED_UP`): a swarm too big for its machine runs slower,
+     not frozen (each step's rate is on ``/world/metrics``);
 
-   in both modes a robot whose command for the step is missing or late holds
-   still for the step (counted): a command is only ever applied to the positions
-   it was decided from (see :mod:`sim_bridge.world.world_link`);
+   a robot whose command for the step is missing or late (a deadline miss) moves on
+   its newest command if that is at most ``max_command_age_steps`` steps old
+   (realtime's default :data:`~sim_bridge.world.world_link.DEFAULT_MAX_AGE_STEPS`,
+   lockstep's 0), else holds still (see :mod:`sim_bridge.world.world_link`); when a
+   robot missed, the step's motions go through the guard
+   (:mod:`sim_bridge.world.stale_guard`), which slows the older of two commands that
+   would bring their robots closer than 2R;
 
 3. steps the physics (:mod:`sim_bridge.world.physics`), then measures the formation
    against the current pattern (:mod:`sim_bridge.world.phase_tally`) and records
@@ -65,10 +74,19 @@ from sim_bridge.world.membership import Membership
 from sim_bridge.world.phase_tally import PhaseTally
 from sim_bridge.world.physics import PhysicsWorld, arena_for_patterns
 from sim_bridge.world.run_results import PhaseResult, Progress, RunResult
-from sim_bridge.world.world_link import WorldLink
+from sim_bridge.world.stale_guard import guard_stale
+from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS, WorldLink
 from sim_bridge.world.world_log import Say, WorldLog
 
 DEFAULT_PATTERNS = "circle,cross,line,heart"
+HELD_SLOW_DOWN = 0.5
+"""realtime: above this share of robots held still (averaged), the world slows down."""
+HELD_SPEED_UP = 0.1
+"""realtime: below it, the world goes back toward ``rate_hz``."""
+HELD_AVERAGING = 0.2
+"""Weight of a step in the average of the held share."""
+SLOW_DOWN, SPEED_UP = 1.1, 1.02
+"""Factors on the period per step: slow down fast, speed up gently."""
 
 
 @dataclass
@@ -84,17 +102,29 @@ class SimConfig:
     first_step_deadline_ms: float = 5000.0
     max_steps: int = DEFAULT_WORLD.step_limit
     rate_hz: float = 1.0 / DEFAULT_WORLD.dt_s
+    min_rate_hz: float | None = None
+    """realtime: the slowest the world goes when robots cannot keep up (None: rate_hz / 4;
+    rate_hz: a fixed rate)."""
     brains: dict[str, BrainChoice] | None = None
     """Brain per pattern; None leaves the robots' brains alone."""
     wait_robots_s: float = 30.0
     swap_timeout_s: float = 15.0
     pattern_republish_s: float = 1.0
+    max_command_age_steps: int | None = None
+    """Oldest command still applied (steps); None: 0 in lockstep, DEFAULT_MAX_AGE_STEPS in
+    realtime."""
     world: WorldConfig = DEFAULT_WORLD
     conditions: Conditions = PERFECT
     """The wheels' part is the world's (gain, actuation noise, differential drive); the
     sensing part is each robot's."""
     ros2: bool = False
     """The robots move as a ROS 2 fleet (``sim --ros2``: :mod:`sim_bridge.ros2.fleet`)."""
+
+    @property
+    def max_age_steps(self) -> int:
+        if self.max_command_age_steps is not None:
+            return self.max_command_age_steps
+        return 0 if self.mode == "lockstep" else DEFAULT_MAX_AGE_STEPS
 
 
 @dataclass
@@ -149,6 +179,9 @@ class SimWorld:
         self.stepping_wall_s = 0.0
         self.stepping_cpu_s = 0.0
         self._tick: float | None = None  # realtime: when the current step's period began
+        self.period_s = 1.0 / cfg.rate_hz
+        """realtime: the current period (longer than 1 / rate_hz while robots cannot keep up)."""
+        self._held_avg = 0.0
         self.overruns = 0
         self._wheel_ids: list[int] = []
         self._wheel_model: Wheels | None = None
@@ -165,7 +198,7 @@ class SimWorld:
                                                  self.journal.event, self.w, cfg.seed)
         else:
             self.link = WorldLink(session, cfg.swarm, cfg.mode == "lockstep", recorder,
-                                  self.journal.event)
+                                  self.journal.event, cfg.max_age_steps)
         self.members = Membership(self.link.roster, self.physics, self.link, self.journal,
                                   self.rng, self.arena_m, self.w)
         if recorder is not None and cfg.mode == "lockstep" and recorder.sim_time is None:
@@ -209,6 +242,7 @@ class SimWorld:
             self.journal.event(
                 "run_start", swarm=cfg.swarm, robots=cfg.robots, patterns=cfg.patterns,
                 mode=cfg.mode, seed=cfg.seed, step_deadline_ms=cfg.step_deadline_ms,
+                max_command_age_steps=cfg.max_age_steps,
                 max_steps=cfg.max_steps, rate_hz=cfg.rate_hz, arena_m=self.arena_m,
                 world=asdict(self.w), brains={k: asdict(v) for k, v in (cfg.brains or {}).items()})
             if not self.members.wait_for_robots(cfg.robots, cfg.wait_robots_s, self.stop_event):
@@ -224,7 +258,11 @@ class SimWorld:
                 "run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),
                 formed=[p.formed for p in phases], malformed=self.malformed,
                 over_budget=self.link.budget.dropped,
-                contacts_total=self.physics.contacts_total)
+                contacts_total=self.physics.contacts_total,
+                stepping_cpu_s=round(self.stepping_cpu_s, 4),
+                stepping_wall_s=round(self.stepping_wall_s, 4), overruns=self.overruns,
+                rate_hz_end=round(1.0 / self.period_s, 3),
+                log_dropped=self.rec.dropped if self.rec is not None else 0)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
                          str(self.rec.path) if self.rec and self.rec.path else None,
@@ -310,20 +348,29 @@ class SimWorld:
         pos = self.physics.positions()
         t_step = time.monotonic()
         cpu_step = time.thread_time()
-        v, missed = self.link.exchange(self.step, self.w.dt_s, ids, pos,
-                                       self._deadline_s(first), self.stop_event)
+        v, missed, age = self.link.exchange(self.step, self.w.dt_s, ids, pos,
+                                            self._deadline_s(first), self.stop_event)
         if self.stop_event.is_set():
             return False
-        res = self.physics.step(self._wheels(ids, v))
+        v = self._wheels(ids, v)  # what the wheels make of the commands, then the guard
+        scaled: list[int] = []
+        if missed:  # stale commands and robots held still: no motion may close a pair in
+            v, rows = guard_stale(pos, v, age, self.w, self.arena_m)
+            scaled = [ids[k] for k in rows.tolist()]
+        if self.cfg.mode == "realtime":
+            self._adapt_rate(float(np.mean(age < 0)))
+        res = self.physics.step(v)
         self.link.moved(ids, pos)
         self.step += 1
         ph.steps += 1
-        m = ph.tally.step(ids, pos, res.positions, ph.C, res.new_contacts, missed, self.w)
+        m = ph.tally.step(ids, pos, res.positions, ph.C, res.new_contacts, missed, self.w,
+                          age=age, scaled=scaled)
         brains = self.link.brains()
         ph.brain_ids.update(brains.get(r, "") for r in ids)
         self.journal.step_measures(m)
         self.journal.record_step(ph.index, ph.label, self.version, ph.steps, ids,
-                                 res.positions, ph.C, m, t_step)
+                                 res.positions, ph.C, m, t_step,
+                                 1.0 / self.period_s if self.cfg.mode == "realtime" else None)
         self.stepping_wall_s += time.monotonic() - t_step
         self.stepping_cpu_s += time.thread_time() - cpu_step
         if self.on_progress is not None:
@@ -331,10 +378,21 @@ class SimWorld:
                                       ph.steps, m.error_m, len(ids), ph.tally.deadline_misses))
         return True
 
+    def _adapt_rate(self, held_share: float) -> None:
+        """realtime: a longer period while most robots hold still for want of a command."""
+        a = HELD_AVERAGING
+        self._held_avg = (1 - a) * self._held_avg + a * held_share
+        cfg = self.cfg
+        slowest = 1.0 / (cfg.min_rate_hz if cfg.min_rate_hz is not None else cfg.rate_hz / 4)
+        if self._held_avg > HELD_SLOW_DOWN:
+            self.period_s = min(self.period_s * SLOW_DOWN, slowest)
+        elif self._held_avg < HELD_SPEED_UP:
+            self.period_s = max(self.period_s / SPEED_UP, 1.0 / cfg.rate_hz)
+
     def _deadline_s(self, first: bool) -> float:
         """How long a step waits for commands: longer at the start and after a join."""
         if self.cfg.mode != "lockstep":  # to the step's tick, on a fixed schedule
-            period = 1.0 / self.cfg.rate_hz
+            period = self.period_s
             now = time.monotonic()
             if self._tick is None or now > self._tick + period:
                 if self._tick is not None:
@@ -358,6 +416,8 @@ class SimWorld:
             min_separation_m=(round(t.min_separation_m, 6) if math.isfinite(t.min_separation_m)
                               else -1.0),
             deadline_misses=t.deadline_misses, late_commands=self.link.late - ph.late0,
+            stale_commands=t.stale_commands, held_still=t.held_still,
+            command_age_max=t.command_age_max, guard_scaled=t.guard_scaled,
             final_error_m=round(t.error_m, 6), brain=phase_brain_label(ph.choice, seen),
             brain_ids=seen, joins=t.joins, leaves=t.leaves, start_step=ph.start_step,
             end_step=self.step, wall_s=round(time.monotonic() - ph.t_start, 3),

@@ -20,15 +20,23 @@ robot's own pose key is still published for whoever subscribes to it (tools, a
 robot before its first all-poses message): a Zenoh matching listener per
 publisher says who listens, so nobody listening costs nothing.
 
-**A command counts only for the step it was computed from**, in both modes: the
-world applies robot i's command at step t only if it says step t (the poses of t,
-which the world published) and arrived before step t's deadline (lockstep: all in
-or ``deadline_s``; realtime: the step's tick). Anything else (late, for an older
-step, missing) is not used: that robot holds still for step t (counted as a
-deadline miss; late arrivals as ``late``). So every velocity applied was decided
-from exactly the positions it is applied to -- the same situation as a
-synchronous evaluation, where each robot's ORCA filter keeps pairs >= 2R apart --
-and a stale command can never move a robot that others already avoided elsewhere.
+**A command is for the step it was computed from.** Robot i's command for step t
+(the poses of t, which the world published) that arrived before step t's deadline
+(lockstep: all in or ``deadline_s``; realtime: the step's tick) is applied at t,
+*fresh* (age 0). A robot without one missed the step's deadline (counted as a
+deadline miss; a command that arrives after its step's deadline as ``late``). With
+``max_age_steps`` k > 0 (realtime's default, :data:`DEFAULT_MAX_AGE_STEPS`) such a
+robot still moves on its newest command if that was decided from the poses of one of
+the last k steps and has not been applied yet (*stale*, age t - s: a late command is
+not thrown away, so a swarm whose round trip is longer than a period slows down
+instead of standing still); otherwise it holds still. Each command moves its robot
+for one step at most: applied twice, a command that brings its robot onto its slot
+would carry it past (the robot's own account of its late commands,
+:mod:`runtime.robot.in_flight`, follows the same rule). The age of every
+applied command is returned (:class:`Collected`) and logged by the world; the world
+guards stale motions (:mod:`sim_bridge.world.stale_guard`). With k = 0 (lockstep's
+default) every velocity applied was decided from exactly the positions it is
+applied to, as in a synchronous evaluation.
 
 A sample that does not decode, or whose robot id disagrees with its key, is
 dropped and counted (``malformed`` events, the first 100), never a crash.
@@ -47,13 +55,15 @@ import threading
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
+from typing import NamedTuple
 
 import numpy as np
 import zenoh
 
 from runtime.decision.team_pattern import MAX_VERSION_STEP
 from runtime.net.session import direct
-from runtime.types import Array
+from runtime.robot.in_flight import MAX_COMMAND_AGE_STEPS
+from runtime.types import Array, IntArray
 from runtime.wire import keys
 from runtime.wire.messages import (
     Command,
@@ -74,6 +84,21 @@ MALFORMED_EVENTS = 100
 """Malformed samples logged one by one; enough to diagnose, the count goes on."""
 SILENT_STEPS = 3
 """``lockstep``: a robot silent this many exchanges in a row is no longer waited for."""
+DEFAULT_MAX_AGE_STEPS = MAX_COMMAND_AGE_STEPS
+"""realtime: the oldest command (in steps since its poses) still applied, by default (the
+robots' prediction of their own late motion, :mod:`runtime.robot.in_flight`, assumes it)."""
+
+
+class Collected(NamedTuple):
+    """The commands of one exchange, in the order of its ``ids``."""
+
+    v: Array
+    """(n, 2) velocities to apply (m/s); 0 for a robot that holds still."""
+    missed: list[int]
+    """Robots without a fresh command (none for the step before its deadline)."""
+    age: IntArray
+    """(n,) steps between the poses a command was decided from and this step: 0 fresh,
+    1..max_age_steps stale, -1 none applied (the robot holds still)."""
 
 
 class WorldLink:
@@ -86,10 +111,12 @@ class WorldLink:
         lockstep: bool,
         recorder: Recorder | None,
         event: Callable[..., None],
+        max_age_steps: int = 0,
     ) -> None:
         self.session = session
         self.swarm = swarm
         self.lockstep = lockstep
+        self.max_age_steps = int(max_age_steps)
         self.rec = recorder
         self._event = event
         self.malformed = 0
@@ -107,6 +134,8 @@ class WorldLink:
         self._expect: set[int] = set()
         self._cmds: dict[int, Command] = {}
         self._cmd_t: dict[int, float] = {}
+        self._newest: dict[int, Command] = {}  # robot -> its command for the newest step
+        self._applied: dict[int, int] = {}  # robot -> step of the last command applied
         self._last_step = -1  # the newest step whose poses went out
         self._brain_of: dict[int, str] = {}
         self._exchanges = 0  # exchanges begun
@@ -238,6 +267,9 @@ class WorldLink:
         with self.cond:
             self._spoke_at[rid] = self._exchanges
             self._brain_of[rid] = cmd.brain_id
+            newest = self._newest.get(rid)
+            if cmd.step <= self._last_step and (newest is None or cmd.step > newest.step):
+                self._newest[rid] = cmd
             if cmd.step == self._collect_step and rid in self._expect:
                 if rid not in self._cmds:
                     self._cmds[rid] = cmd
@@ -319,6 +351,9 @@ class WorldLink:
             pub[0].undeclare()  # type: ignore[no-untyped-call]
         self._listened.discard(rid)
         self._prev_pos.pop(rid, None)
+        with self.cond:
+            self._newest.pop(rid, None)
+        self._applied.pop(rid, None)
 
     def _undeclare_poses(self) -> None:
         for rid in list(self._pose_pubs):
@@ -362,13 +397,13 @@ class WorldLink:
     def exchange(
         self, step: int, dt_s: float, ids: list[int], pos: Array, deadline_s: float,
         stop: threading.Event,
-    ) -> tuple[Array, list[int]]:
+    ) -> Collected:
         """Publish the poses of ``step``, collect its commands.
 
         Waits until every live robot answered (``lockstep``) or ``deadline_s``
         seconds passed (``realtime``: always the full ``deadline_s``, the time to
-        the step's tick). Returns (velocities (n, 2) m/s in ``ids`` order, robots
-        that gave no command for ``step`` in time: they hold still).
+        the step's tick). Returns the velocities to apply in ``ids`` order, the
+        robots without a fresh command and each command's age (:class:`Collected`).
         """
         with self.cond:
             self._exchanges += 1
@@ -393,18 +428,27 @@ class WorldLink:
                 self.cond.wait(left)
             cmds = dict(self._cmds)
             arrived = dict(self._cmd_t)
+            newest = {r: self._newest[r] for r in ids if r not in cmds and r in self._newest}
             self._collect_step = -1
         self.latencies_ms.extend((t - t0) * 1000.0 for t in arrived.values())
-        return self._velocities(ids, cmds)
+        return self._velocities(step, ids, cmds, newest)
 
-    @staticmethod
-    def _velocities(ids: list[int], cmds: dict[int, Command]) -> tuple[Array, list[int]]:
+    def _velocities(self, step: int, ids: list[int], cmds: dict[int, Command],
+                    newest: dict[int, Command]) -> Collected:
         v = np.zeros((len(ids), 2))
+        age = np.full(len(ids), -1, np.int64)
         missed: list[int] = []
         for k, rid in enumerate(ids):
             cmd = cmds.get(rid)
-            if cmd is None:
-                missed.append(rid)
+            if cmd is not None:
+                age[k] = 0
             else:
-                v[k] = (cmd.vx, cmd.vy)
-        return v, missed
+                missed.append(rid)
+                cmd = newest.get(rid)
+                if (cmd is None or not 0 < step - cmd.step <= self.max_age_steps
+                        or cmd.step <= self._applied.get(rid, -1)):
+                    continue  # none, too old or applied already: the robot holds still
+                age[k] = step - cmd.step
+            self._applied[rid] = cmd.step
+            v[k] = (cmd.vx, cmd.vy)
+        return Collected(v, missed, age)

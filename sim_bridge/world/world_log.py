@@ -58,11 +58,17 @@ class WorldLog:
             self.event("contact", pairs=[list(p) for p in m.new_contacts])
         if m.missed:  # the step those robots did not answer in time
             self.event("deadline_miss", robots=m.missed, for_step=self._clock() - 1)
+        if m.stale:  # of those, the ones that moved on an older command, and its age
+            self.event("stale_command", robots=[r for r, _ in m.stale],
+                       ages=[k for _, k in m.stale], for_step=self._clock() - 1)
+        if m.scaled:
+            self.event("stale_guard", robots=m.scaled, for_step=self._clock() - 1)
 
     def record_step(self, phase: int, pattern: str, version: int, phase_step: int,
                     ids: list[int], pos: Array, C: Array, m: StepMeasures,
-                    t_step: float) -> None:
-        """The step's metrics row and scene; ``pos`` (n, 2) in ``ids`` order, ``C`` (n, 2)."""
+                    t_step: float, rate_hz: float | None = None) -> None:
+        """The step's metrics row and scene; ``pos`` (n, 2) in ``ids`` order, ``C`` (n, 2);
+        ``rate_hz`` the realtime world's rate at the step."""
         if self.rec is None:
             return
         step = self._clock()
@@ -76,7 +82,12 @@ class WorldLog:
             else -1.0,
             "collisions": m.colliding, "contacts": len(m.new_contacts),
             "deadline_misses": len(m.missed),
+            "stale_commands": len(m.stale),
+            "command_age_max": max((k for _, k in m.stale), default=0),
+            "held_still": len(m.held),
+            "guard_scaled": len(m.scaled),
             "wall_ms": round((time.monotonic() - t_step) * 1000.0, 3),
+            **({} if rate_hz is None else {"rate_hz": round(rate_hz, 3)}),
         }, now_ns)
         targets = centred(C) + pos.mean(axis=0)
         robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]

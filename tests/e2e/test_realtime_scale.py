@@ -40,8 +40,8 @@ def min_separation_m(run: LogData) -> float:
 
 def test_late_commands_never_collide(procs: Any, tmp_path: Path, kit: Any) -> None:
     """Robots that answer 0-130 ms late at 10 Hz (so a third or more of their commands
-    miss their step): the world applies only commands for the step they were decided from, the rest
-    hold still, and no two robots ever come closer than 2R."""
+    miss their step): the world applies a late command a step or more later, guarded, or
+    holds the robot still, and no two robots ever come closer than 2R."""
     n = 12
     swarm, port, log = swarm_name("late"), kit.free_port(), tmp_path / "late.mcap"
     world = procs.world(swarm, port, "--robots", str(n), "--patterns", "circle,line",
@@ -68,6 +68,42 @@ def test_late_commands_never_collide(procs: Any, tmp_path: Path, kit: Any) -> No
     # late robots still moved: the swarm made progress (every robot travelled)
     first, last = run.frames.xy[0], run.frames.xy[-1]
     assert (np.linalg.norm(last - first, axis=1) > 0.05).all()
+
+
+def test_slowed_robots_form_on_stale_commands(procs: Any, tmp_path: Path, kit: Any) -> None:
+    """Robots whose every command goes out 0-250 ms late at 10 Hz (most are one to three
+    steps old when they arrive): the world applies them, stale, within the default age bound;
+    the swarm forms the circle with 0 collisions, and the log and its report tell each
+    applied command's age."""
+    from sim_bridge.log.report import analyse
+    from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS
+
+    n = 8
+    swarm, port, log = swarm_name("stale"), kit.free_port(), tmp_path / "stale.mcap"
+    world = procs.world(swarm, port, "--robots", str(n), "--patterns", "circle",
+                        "--seed", "11", "--mode", "realtime", "--max-steps", "400",
+                        "--min-rate-hz", "10",  # a fixed rate: the robots stay late
+                        "--record", str(log), "--json", "--wait-robots-s", "120")
+    for i in range(n):
+        procs.robot(swarm, port, i, "--brain", GENERAL, "--mode", "realtime",
+                    "--debug-delay-ms", "250", "--exit-after-silence-s", "3")
+    assert world.wait(timeout=200) == 0, procs.log("world")[-2000:]  # 0: formed
+    (phase,) = json.loads(procs.log("world").strip().splitlines()[-1])["phases"]
+    assert phase["formed"] and phase["collisions"] == 0
+
+    run = read_log(log)
+    assert run.recovery.finished and run.malformed == 0
+    (end,) = run.events_of("phase_end")
+    stale = run.events_of("stale_command")
+    ages = [a for e in stale for a in e["ages"]]
+    assert end["stale_commands"] == len(ages) >= 0.2 * n * end["steps"], (len(ages), end)
+    assert max(ages) == end["command_age_max"] <= DEFAULT_MAX_AGE_STEPS
+    assert min(ages) >= 1 and any(a >= 2 for a in ages)  # late by more than a step, applied
+    assert run.events_of("collision") == [] and end["collisions"] == 0
+    assert min_separation_m(run) >= 2 * W.radius_m - 1e-6, min_separation_m(run)
+    (rep,) = analyse(run).phases  # the report recomputed from the log tells the same
+    assert rep.formed and rep.collisions == 0 and rep.stale_commands == len(ages)
+    assert sum(rep.command_ages.values()) == len(ages) and rep.guard_scaled == end["guard_scaled"]
 
 
 @pytest.mark.parametrize("topology", ["peer", "router"])

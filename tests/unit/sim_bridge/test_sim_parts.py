@@ -109,8 +109,8 @@ def test_world_link_exchanges_a_step_with_a_robot() -> None:
             assert link.roster.wait_for(1, 20.0, stop) == 1
             link.add_robot(1, 0.5, 0.5)
             pos = np.array([[1.0, 2.0]])
-            v, missed = link.exchange(0, W.dt_s, [1], pos, 20.0, stop)
-            assert missed == [] and v.tolist() == [[0.25, -0.5]]
+            v, missed, age = link.exchange(0, W.dt_s, [1], pos, 20.0, stop)
+            assert missed == [] and v.tolist() == [[0.25, -0.5]] and age.tolist() == [0]
             assert link.brains() == {1: "rule:assign"} and link.decision_us == [12.0]
             robot.put(keys.cmd_key(swarm, 1), b"\x00garbage")  # dropped and counted
             deadline = time.monotonic() + 30.0  # delivery is asynchronous: wait, bounded
@@ -119,8 +119,8 @@ def test_world_link_exchanges_a_step_with_a_robot() -> None:
             link.put_pattern(b"pattern")
             token.undeclare()
             sub.undeclare()
-            v, missed = link.exchange(1, W.dt_s, [1], pos, 20.0, stop)  # a gone robot: no wait
-            assert missed == [1] and v.tolist() == [[0.0, 0.0]]
+            v, missed, age = link.exchange(1, W.dt_s, [1], pos, 20.0, stop)  # gone: no wait
+            assert missed == [1] and v.tolist() == [[0.0, 0.0]] and age.tolist() == [-1]
         link.close()  # closing twice is harmless
         assert link.malformed == 1 and events[0][0] == "malformed"
     finally:
