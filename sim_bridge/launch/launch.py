@@ -79,7 +79,7 @@ from sim_bridge.live.foxglove_live import FoxgloveLive, parse_address
 from sim_bridge.log.recorder import Recorder, check_output
 from sim_bridge.world.brain_choice import BrainChoice, pick_brains
 from sim_bridge.world.run_results import PhaseResult, Progress, RunResult, result_dict
-from sim_bridge.world.sim import add_world_arguments, start_live
+from sim_bridge.world.sim import WORLD_SWITCH_INTERVAL_S, add_world_arguments, start_live
 from sim_bridge.world.sim import config_from_args as world_config_from_args
 from sim_bridge.world.sim_world import SimWorld
 from sim_bridge.world.world_log import Say
@@ -388,6 +388,7 @@ def run(args: argparse.Namespace) -> int:
             creds.close()
             print(f"patternrl launch: error: {e}", file=sys.stderr)
             return 2
+        sys.setswitchinterval(WORLD_SWITCH_INTERVAL_S)
         world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
         robots = Robots()
         interrupted = threading.Event()

@@ -241,6 +241,7 @@ class Recorder:
                 self.writer_errors += 1
             finally:
                 self._clock_ns = None
+            time.sleep(0)  # hand the interpreter to the step and the receive callbacks
 
     def _wait_writer(self) -> None:
         """Return once the writer has written everything queued before this call."""

@@ -51,6 +51,10 @@ from sim_bridge.world.run_results import RunResult, result_dict
 from sim_bridge.world.sim_world import DEFAULT_PATTERNS, SimConfig, SimWorld
 from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS
 
+WORLD_SWITCH_INTERVAL_S = 0.001
+"""The world process hands the interpreter between its threads (the step, Zenoh's receive
+callbacks, the recorder's writer) at least this often (Python's default is 5 ms): a
+command's callback does not wait behind the writer."""
 MAX_AGE_STEPS_LIMIT = 50
 """The largest --max-command-age-steps accepted (5 s at 10 Hz)."""
 
@@ -206,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
         session.close()  # type: ignore[no-untyped-call]
         print(f"patternrl sim: error: {e}", file=sys.stderr)
         return 2
+    sys.setswitchinterval(WORLD_SWITCH_INTERVAL_S)
     world = SimWorld(cfg, session, rec)
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
