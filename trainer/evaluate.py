@@ -117,6 +117,7 @@ class EvalResult:
         return {
             "episodes": self.episodes,
             "seeds": [self.seed],
+            "hold_steps": self.hold_steps,
             "seeding": "episode e is the first episode of env e of BatchWorld(seed)",
             "safety": self.safety,
             **({"orca": self.orca} if self.orca is not None else {}),
@@ -276,11 +277,16 @@ def manifest_evaluation(brain: Brain, pattern: str, n_robots: int, episodes: int
                         progress: bool | None = None, label: str = "") -> dict[str, Any]:
     """A brain manifest's ``evaluation`` block: ``episodes`` held-out episodes with the
     safety filter at its defaults (as shipped), and under ``raw`` the same episodes with
-    the filter off (the brain alone, as the paper runs it)."""
+    the filter off (the brain alone, as the paper runs it). Success at the first passage
+    (``hold_steps`` 0), as every shipped manifest measured it; ``held_rate`` says how many of
+    the formed held the next ``HOLD_STEPS`` steps."""
     block = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
-                           progress=progress, label=label).manifest_block()
+                           progress=progress, label=label, hold_steps=0).manifest_block()
+    held = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
+                          progress=progress, label=f"{label} hold")
+    block["held_rate"] = None if math.isnan(held.held_rate) else held.held_rate
     raw = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
-                         safety=None, progress=progress, label=f"{label} raw")
+                         safety=None, progress=progress, label=f"{label} raw", hold_steps=0)
     block["raw"] = raw.manifest_block()
     return block
 

@@ -49,7 +49,7 @@ def test_fresh_seeds_agree_with_the_manifest(path: Path) -> None:
     manifest = json.loads(path.with_suffix(".json").read_text())
     pattern = manifest["pattern"] or "random"
     res = evaluate_brain(load_brain(str(path)), pattern, manifest["n_robots"], 12, seed=424242,
-                         safety=_orca(manifest), progress=False)
+                         safety=_orca(manifest), progress=False, hold_steps=0)  # as measured
     claimed = manifest["evaluation"]["success_rate"]
     # 12 episodes: a brain claiming 100 % may miss one; a brain claiming 0 % must not form.
     assert abs(res.success_rate - claimed) <= 0.25, (res.success_rate, claimed)
@@ -63,7 +63,7 @@ def test_manifest_evaluation_is_reproduced_exactly() -> None:
     manifest = json.loads(path.with_suffix(".json").read_text())
     ev = manifest["evaluation"]
     res = evaluate_brain(load_brain(str(path)), "circle", 10, ev["episodes"], seed=ev["seeds"][0],
-                         safety=_orca(manifest), progress=False)
+                         safety=_orca(manifest), progress=False, hold_steps=ev.get("hold_steps", 0))
     assert res.success_rate == ev["success_rate"]
     assert res.collisions == ev["collisions"]
     # The lower-bound estimate gained starts after the brains were evaluated, so a bound can

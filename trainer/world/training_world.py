@@ -94,7 +94,7 @@ class EpisodeStats(NamedTuple):
     steps: IntArray  # (k,) steps taken
     travel: Array  # (k,) total distance travelled by all robots (m)
     collisions: IntArray  # (k,) colliding pairs summed over the episode
-    final_error: Array  # (k,) formation error at the end (m)
+    final_error: Array  # (k,) formation error at the end (m; with hold_steps, at the first passage)
     episode_return: Array  # (k,) sum over steps of the robots' mean reward
     pattern_ids: IntArray  # (k,) index into the pattern set
     final_obs: F32Array  # (k, N, D) last observation, before the reset
@@ -200,6 +200,7 @@ class BatchWorld:
         self.first_formed: IntArray = np.full(n_envs, -1, dtype=np.int64)
         self.held_steps: IntArray = np.zeros(n_envs, dtype=np.int64)
         self.travel_at_formed: Array = np.zeros(n_envs)
+        self.error_at_formed: Array = np.zeros(n_envs)
         self._cache: dict[str, Array] = {}
         self.patterns: tuple[str, ...] = ()
         self._set_pattern_names(_pattern_list(patterns))
@@ -500,6 +501,7 @@ class BatchWorld:
             first = np.flatnonzero((ff < 0) & formed)
             ff[first] = self.steps[first]
             self.travel_at_formed[first] = self._travel[:, first].sum(axis=0)
+            self.error_at_formed[first] = self.error[first]
             truncated = (self.steps >= self.step_limit) & (ff < 0)
             return truncated, truncated | ((ff >= 0) & (self.steps - ff >= self.hold_steps))
         truncated = self.steps >= self.step_limit
@@ -511,6 +513,7 @@ class BatchWorld:
         bounds = self.compute_bounds
         steps = self.steps[ended]
         travel = self._travel[:, ended].sum(axis=0)
+        error = self.error[ended]
         first = held = None
         if self.hold_steps:  # formed: at the first passage; steps: up to it
             first = self.first_formed[ended]
@@ -518,10 +521,11 @@ class BatchWorld:
             formed[ended] = first >= 0
             steps = np.where(first >= 0, first, steps)
             travel = np.where(first >= 0, self.travel_at_formed[ended], travel)
+            error = np.where(first >= 0, self.error_at_formed[ended], error)
             held = self.held_steps[ended] / self.hold_steps
         return EpisodeStats(
             ended, formed[ended], steps, travel,
-            self.episode_collisions[ended], self.error[ended], self.episode_return[ended],
+            self.episode_collisions[ended], error, self.episode_return[ended],
             self.pattern_ids[ended], obs[ended], self.frames[ended, 0],
             self.lower_bound_steps[ended] if bounds else None,
             self.lower_bound_travel[ended] if bounds else None,
