@@ -30,6 +30,22 @@ def wait_for(cond: Callable[[], Any], timeout: float, what: str, poll: float = 0
         time.sleep(poll)
 
 
+def wait_notified(cond: threading.Condition, pred: Callable[[], Any], timeout: float,
+                  what: str) -> Any:
+    """Wait on ``cond`` (notified when something arrives) until ``pred`` is truthy (returned),
+    or fail the test after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    with cond:
+        while True:
+            v = pred()
+            if v:
+                return v
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            cond.wait(left)
+
+
 def stop_processes(procs: list[subprocess.Popen[Any]], timeout: float = 5.0) -> None:
     """SIGTERM every process still running, then wait for each (SIGKILL after ``timeout`` s)."""
     for p in procs:

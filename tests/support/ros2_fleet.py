@@ -16,13 +16,15 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import pytest
+from runtime.ros2.environment import import_rclpy
+from support.net import wait_notified
 
 
 def ros2_isolated() -> int:
     """Set this run's ROS 2 domain and localhost-only discovery (inherited by children);
-    returns the domain id. Skips the test where the ros2 extra is not installed."""
-    pytest.importorskip("rclpy", reason="the ros2 extra is not installed")
+    returns the domain id. The ros2 extra is part of what the test command installs: without
+    it the test fails with the one line that says so."""
+    import_rclpy()
     dom = 1 + os.getpid() % 100  # 1..100: each run its own domain, within DDS's port range
     os.environ["ROS_DOMAIN_ID"] = str(dom)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -123,16 +125,7 @@ class DiffDriveFleet:
         return m
 
     def wait(self, pred: Any, timeout: float, what: str) -> Any:
-        deadline = time.monotonic() + timeout
-        with self.lock:
-            while True:
-                v = pred()
-                if v:
-                    return v
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-                self.lock.wait(left)
+        return wait_notified(self.lock, pred, timeout, what)
 
     def close(self) -> None:
         self._run = False

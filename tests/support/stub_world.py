@@ -42,6 +42,7 @@ from runtime.wire.messages import (
 )
 from runtime.world_config import DEFAULT_WORLD
 from support import ROOT, free_port
+from support.net import wait_notified
 
 
 class StubWorld:
@@ -142,16 +143,7 @@ class StubWorld:
 
     # -- waiting
     def wait(self, pred: Callable[[], Any], timeout: float, what: str) -> Any:
-        deadline = time.monotonic() + timeout
-        with self.cond:
-            while True:
-                v = pred()
-                if v:
-                    return v
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-                self.cond.wait(left)
+        return wait_notified(self.cond, pred, timeout, what)
 
     def wait_alive(self, ids: set[int], timeout: float = 20.0) -> None:
         self.wait(lambda: ids <= self.alive, timeout, f"robots {sorted(ids)} alive")
