@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT))
 
 from runtime.brain.brain import load_brain  # noqa: E402 -- path set-up
 from runtime.conditions import parse_conditions  # noqa: E402
+from trainer.adversary import ADVERSARY, ChargeBrain  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 
 CASES: dict[str, str] = {
@@ -67,7 +68,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
     estimator = brain_name.endswith("+est")
     naive = brain_name.endswith("+naive")
     path = brain_name.removesuffix("+est").removesuffix("+naive")
-    brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
+    brain = ChargeBrain() if path == ADVERSARY else load_brain(
+        str(ROOT / path) if path.endswith(".onnx") else path)
     cond = parse_conditions(CASES.get(case, case))
     tot: dict[str, float] = {"episodes": 0, "ok": 0, "formed": 0, "held": 0, "coll": 0,
                              "steps": 0.0, "wall": 0.0}

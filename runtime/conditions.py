@@ -92,6 +92,11 @@ class Conditions:
     # ---------------------------------------------------------------- views
 
     @property
+    def diff_turn_rps(self) -> float | None:
+        """The base's turn-rate limit (rad/s) when it is a differential drive, else None."""
+        return self.turn_rate_rps if self.kinematics == "diff" else None
+
+    @property
     def sensing_perfect(self) -> bool:
         """Every robot sees every other exactly and at once."""
         return (self.noise_m == 0 and self.range_m == math.inf and self.k_nearest == 0

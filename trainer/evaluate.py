@@ -155,11 +155,12 @@ def evaluate_brain(
 ) -> EvalResult:
     """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
 
-    Under perfect sensing (and without the estimator) every robot of a team sees the same
+    In the perfect world (and without the estimator) every robot of a team sees the same
     team, and one batch decision per step serves them all; otherwise each robot decides on
-    its own view (:class:`runtime.decision.local.LocalDecisions`; ``naive``: without what a
-    robot knows of its sensing, for comparison). The wheels of ``conditions`` act in the
-    world either way."""
+    its own view, with its own safety filter sized for the conditions and, on a
+    differential-drive base, its own heading (:class:`runtime.decision.local.LocalDecisions`;
+    ``naive``: without what a robot knows of its sensing and wheels, for comparison). The
+    wheels of ``conditions`` act in the world either way."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -174,7 +175,7 @@ def evaluate_brain(
         hold_steps=hold_steps,
     )
     local = None
-    if estimator or not conditions.sensing_perfect:
+    if estimator or conditions != PERFECT:
         local = LocalDecisions(brain, episodes, n_robots, conditions, estimator=estimator,
                                safety=safety, seed=seed, world=world, naive=naive)
     E = episodes

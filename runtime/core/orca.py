@@ -40,6 +40,10 @@ MAX_NEIGHBOURS = 64
 """The most neighbours the filter considers (``OrcaParams.max_neighbours``)."""
 
 
+GUARD_PASSES = 4
+"""Rounds of projection on the guard's bounds before it scales what is left (see
+:meth:`OrcaFilter.robot`)."""
+_GUARD_PASSES = cython.declare(cython.Py_ssize_t, 4)  # the same, as a C constant
 MARGIN_ROOM_M = 1e-3
 """Inside a pair's uncertainty margin, the margin shrinks to the distance less this (m)."""
 
@@ -236,6 +240,7 @@ class OrcaFilter:
     dt: cython.double
     keep_right: cython.double
     v_max: cython.double
+    guard: cython.double
     _ids: cython.Py_ssize_t[:, :, ::1]
     _d2: cython.double[:, :, ::1]
     _count: cython.Py_ssize_t[:, ::1]
@@ -243,10 +248,12 @@ class OrcaFilter:
     _proj: cython.double[:, ::1]
     _out: cython.double[::1]
     _found: cython.double[::1]
+    _no_ref: cython.double[:, :, ::1]
+    _bound: cython.double[:, ::1]
 
     def __init__(self, max_neighbours: int, neighbour_dist_m: float, combined_radius_m: float,
                  dt_s: float, keep_right_rad: float, v_max_mps: float,
-                 hard_radius_m: float = -1.0) -> None:
+                 hard_radius_m: float = -1.0, guard_m: float = 0.0) -> None:
         """``max_neighbours`` at most :data:`MAX_NEIGHBOURS` nearest, closer than
         ``neighbour_dist_m`` (m); ``combined_radius_m`` the pair's radius with its margin
         (m); ``dt_s`` the step (s); ``keep_right_rad`` the clockwise turn of a blocked
@@ -254,7 +261,8 @@ class OrcaFilter:
         ``hard_radius_m`` (m, at most ``combined_radius_m``; negative: the same) the radius
         below which a pair is taken as colliding: between it and ``combined_radius_m`` (the
         margin for a robot's uncertainty) a pair keeps its distance rather than being
-        pushed apart within one step."""
+        pushed apart within one step; ``guard_m`` (m, 0: none) the distance between centres,
+        as the robot sees them, that the last-resort guard keeps (see :meth:`robot`)."""
         if not 0 <= max_neighbours <= MAX_NEIGHBOURS:
             raise ValueError(f"ORCA considers 0 to {MAX_NEIGHBOURS} neighbours, "
                              f"not {max_neighbours}")
@@ -266,6 +274,7 @@ class OrcaFilter:
         self.dt = dt_s
         self.keep_right = keep_right_rad
         self.v_max = v_max_mps
+        self.guard = guard_m if guard_m > 0.0 else 0.0
         k = max(max_neighbours, 1)
         self._ids = None  # the neighbour tables, made for the first batch's shape
         self._tables(1, 1)
@@ -273,6 +282,8 @@ class OrcaFilter:
         self._proj = np.zeros((k, 4))
         self._out = np.zeros(2)
         self._found = np.zeros(2)
+        self._no_ref = np.zeros((0, 0, 0))
+        self._bound = np.zeros((6 * k, 3))
 
     def _tables(self, E: int, n: int) -> None:
         """The neighbour tables (E, n, max_neighbours), kept while E and n stay."""
@@ -286,7 +297,8 @@ class OrcaFilter:
     def robot(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
               pos: cython.const[cython.double][:, :, ::1],
               vel: cython.const[cython.double][:, :, ::1],
-              pref_x: cython.double, pref_y: cython.double, horizon_s: cython.double
+              pref_x: cython.double, pref_y: cython.double, horizon_s: cython.double,
+              guard_ref: cython.const[cython.double][:, :, ::1] = None
               ) -> tuple[cython.double, cython.double, cython.bint, cython.double]:
         """Robot i of team e: its safe velocity (vx, vy, changed, change_mps).
 
@@ -296,19 +308,42 @@ class OrcaFilter:
         velocity (m/s, finite), first clamped to v_max; ``horizon_s`` ORCA's time horizon
         (s). The result has norm <= v_max; ``changed`` says it differs from the clamped
         preferred velocity by more than :data:`CHANGE_TOL_MPS`, ``change_mps`` by how much.
+
+        The last-resort guard (``guard_m`` > 0) then bounds, for each neighbour considered,
+        the robot's approach to it. ORCA's guarantee rests on both robots predicting each
+        other's velocity alike, which noisy and late views break; the guard needs only
+        distances. From the pair as this robot last saw it (``guard_ref`` (E, n, 5): the
+        peer's sensed position, this robot's own pose at that step, and a flag) at
+        distance ``D`` along ``u``, the robot keeps its own approach along ``u`` since then,
+        this step included, within half the room, ``(D - guard_m) / 2``: two robots that
+        both obey, from views of the same age, end the step at least ``guard_m`` apart along
+        ``u``, whatever either did meanwhile, unseen (latency needs no margin). A pair
+        already inside keeps its distance. The bound holds along ``u`` and along the two
+        edges of the cone the peer may lie in, ``asin((guard_m - 2R') / D)``, for the
+        error of a noisy view. A peer whose last update was lost (flag 1; the two robots'
+        views then differ in age) is also bounded from where it is estimated now, ``pos``.
+        Without ``guard_ref`` the pair is taken as it is in ``pos``. The guard projects the
+        velocity on each bound in turn (:data:`GUARD_PASSES` rounds), then scales it down
+        until every bound holds (zero always does).
         """
         if not (0 <= e < pos.shape[0] and 0 <= i < pos.shape[1]) \
                 or vel.shape[0] != pos.shape[0] or vel.shape[1] != pos.shape[1]:
             raise ValueError("ORCA: robot index or velocities do not fit the positions")
         nearest(pos, e, e + 1, i, i + 1, self.max_neighbours, self.range_sq, self._ids,
                 self._d2, self._count)
-        return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s)
+        if guard_ref is None:
+            return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s, self._no_ref)
+        if guard_ref.shape[0] != pos.shape[0] or guard_ref.shape[1] != pos.shape[1] \
+                or guard_ref.shape[2] != 5:
+            raise ValueError("ORCA: the guard's references do not fit the positions")
+        return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s, guard_ref)
 
     @cython.cfunc
     def _safe(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t, a: cython.Py_ssize_t,
               b: cython.Py_ssize_t, pos: cython.const[cython.double][:, :, ::1],
               vel: cython.const[cython.double][:, :, ::1],
-              pref_x: cython.double, pref_y: cython.double, horizon_s: cython.double
+              pref_x: cython.double, pref_y: cython.double, horizon_s: cython.double,
+              guard_ref: cython.const[cython.double][:, :, ::1]
               ) -> tuple[cython.double, cython.double, cython.bint, cython.double]:
         """Robot i of team e, its neighbours at [a, b] of the tables: :meth:`robot`."""
         pref_x, pref_y = _clamp(pref_x, pref_y, self.v_max)
@@ -448,8 +483,150 @@ class OrcaFilter:
             if c < m:
                 _lp3(lines, m, c, v_max, self._proj, out, self._found)
             rx, ry = _clamp(out[0], out[1], v_max)  # the LP's rounding: exactly within v_max
+            if self.guard > 0.0:
+                rx, ry = self._guard(e, i, a, b, m, pos, guard_ref, rx, ry)
         s = hypot(rx - pref_x, ry - pref_y)
         return rx, ry, s > _CHANGE_TOL, s
+
+    @cython.cfunc
+    @cython.exceptval(check=False)
+    def _bounds(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t, a: cython.Py_ssize_t,
+                b: cython.Py_ssize_t, m: cython.Py_ssize_t,
+                pos: cython.const[cython.double][:, :, ::1],
+                ref: cython.const[cython.double][:, :, ::1]) -> cython.Py_ssize_t:
+        """The guard's bounds for the ``m`` neighbours at [a, b] into ``_bound`` (rows
+        [wx, wy, cap]: the velocity's component along w at most cap, m/s); how many."""
+        inv_dt: cython.double = 1.0 / self.dt
+        g: cython.double = self.guard
+        out = self._bound
+        c: cython.Py_ssize_t
+        j: cython.Py_ssize_t
+        side: cython.Py_ssize_t
+        k: cython.Py_ssize_t = 0
+        d: cython.double
+        ux: cython.double
+        uy: cython.double
+        sx: cython.double
+        sy: cython.double
+        cs: cython.double
+        sn: cython.double
+        cap: cython.double
+        has_ref: cython.bint = ref.shape[0] > 0
+        rr: cython.Py_ssize_t
+        for rr in range(2 * m if has_ref else m):
+            c = rr % m
+            j = self._ids[a, b, c]
+            if rr >= m and has_ref and ref[e, j, 4] == 0.0:
+                continue  # a peer seen on time: its view's bound is enough
+            if rr < m and has_ref:  # the pair as last seen, and where this robot stood then
+                sx = ref[e, j, 2]
+                sy = ref[e, j, 3]
+                ux = ref[e, j, 0] - sx
+                uy = ref[e, j, 1] - sy
+            else:
+                sx = pos[e, i, 0]
+                sy = pos[e, i, 1]
+                ux = pos[e, j, 0] - sx
+                uy = pos[e, j, 1] - sy
+            d = sqrt(ux * ux + uy * uy)
+            if not (d > 1e-12 and isfinite(d) and isfinite(sx) and isfinite(sy)):
+                continue
+            ux = ux / d
+            uy = uy / d
+            # half the room there was then, less what this robot has closed since
+            cap = (0.5 * (d - g) - ((pos[e, i, 0] - sx) * ux + (pos[e, i, 1] - sy) * uy)
+                   ) * inv_dt
+            if not cap > 0.0:
+                cap = 0.0
+            # the peer may lie off the seen direction by the error the guard allows for
+            # (g - hard): the seen direction, then both edges of that cone
+            sn = (g - self.hard) / d
+            if sn > 1.0:
+                sn = 1.0
+            cs = sqrt(1.0 - sn * sn)
+            for side in range(3):
+                if side == 0:
+                    out[k, 0] = ux
+                    out[k, 1] = uy
+                else:
+                    out[k, 0] = cs * ux - sn * uy
+                    out[k, 1] = sn * ux + cs * uy
+                    sn = -sn
+                out[k, 2] = cap
+                k += 1
+        return k
+
+    @cython.cfunc
+    @cython.exceptval(check=False)
+    def _scale(self, k: cython.Py_ssize_t, vx: cython.double, vy: cython.double,
+               any_heading: cython.bint) -> cython.double:
+        """The largest s in [0, 1] with s (vx, vy) within the first ``k`` bounds; with
+        ``any_heading``, for whatever a differential-drive base at an unknown heading drives
+        of it (at most ``(|v| + v.w) / 2`` along w)."""
+        out = self._bound
+        c: cython.Py_ssize_t
+        vu: cython.double
+        s: cython.double = 1.0
+        sp: cython.double = sqrt(vx * vx + vy * vy)
+        for c in range(k):
+            vu = vx * out[c, 0] + vy * out[c, 1]
+            if any_heading:
+                vu = 0.5 * (sp + vu)
+            if vu > out[c, 2] and vu * s > out[c, 2]:
+                s = out[c, 2] / vu
+        return s
+
+    @cython.cfunc
+    @cython.exceptval(check=False)
+    def _guard(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t, a: cython.Py_ssize_t,
+               b: cython.Py_ssize_t, m: cython.Py_ssize_t,
+               pos: cython.const[cython.double][:, :, ::1],
+               ref: cython.const[cython.double][:, :, ::1], vx: cython.double,
+               vy: cython.double) -> tuple[cython.double, cython.double]:
+        """(vx, vy) within the guard of the ``m`` neighbours at [a, b] (see :meth:`robot`)."""
+        k: cython.Py_ssize_t = self._bounds(e, i, a, b, m, pos, ref)
+        out = self._bound
+        c: cython.Py_ssize_t
+        _p: cython.Py_ssize_t
+        over: cython.double
+        s: cython.double
+        moved: cython.bint
+        for _p in range(_GUARD_PASSES):  # project on each bound in turn
+            moved = False
+            for c in range(k):
+                over = vx * out[c, 0] + vy * out[c, 1] - out[c, 2]
+                if over > 0.0:
+                    vx = vx - over * out[c, 0]
+                    vy = vy - over * out[c, 1]
+                    moved = True
+            if not moved:
+                return vx, vy
+        s = self._scale(k, vx, vy, False)  # then scale what is left (zero keeps them all)
+        return vx * s, vy * s
+
+    @cython.ccall
+    def guard_scale(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,
+                    pos: cython.const[cython.double][:, :, ::1],
+                    drive_x: cython.double, drive_y: cython.double,
+                    any_heading: cython.bint = False,
+                    guard_ref: cython.const[cython.double][:, :, ::1] = None
+                    ) -> cython.double:
+        """The largest s in [0, 1] such that ``s`` (drive_x, drive_y), the velocity (m/s)
+        the robot's wheels will actually drive for its filtered command, stays within the
+        guard; call it right after :meth:`robot` for the same robot, ``pos`` and
+        ``guard_ref``. A command scaled by s drives s times as fast (a differential-drive
+        base turns by the command's direction only). ``any_heading``: the base's heading is
+        not known, and (drive_x, drive_y) is the command itself. 1 without a guard."""
+        if self.guard <= 0.0:
+            return 1.0
+        if not (0 <= e < pos.shape[0] and 0 <= i < pos.shape[1]):
+            raise ValueError("ORCA: robot index does not fit the positions")
+        ref = self._no_ref if guard_ref is None else guard_ref
+        if ref.shape[0] > 0 and (ref.shape[0] != pos.shape[0] or ref.shape[1] != pos.shape[1]
+                                 or ref.shape[2] != 5):
+            raise ValueError("ORCA: the guard's references do not fit the positions")
+        k: cython.Py_ssize_t = self._bounds(e, i, 0, 0, self._count[0, 0], pos, ref)
+        return self._scale(k, drive_x, drive_y, any_heading)
 
     @cython.ccall
     def teams(self, pos: cython.const[cython.double][:, :, ::1],
@@ -485,5 +662,5 @@ class OrcaFilter:
                     changed[e, i] = 0
                     continue
                 out[e, i, 0], out[e, i, 1], ch, _ = self._safe(e, i, e, i, pos, vel, px, py,
-                                                               horizon_s[e])
+                                                               horizon_s[e], self._no_ref)
                 changed[e, i] = ch

@@ -26,6 +26,8 @@ from numpy.typing import NDArray
 from runtime.brain.brain import Brain
 from runtime.core.assignment import TeamAssignment
 from runtime.core.general_row import GeneralRows
+from runtime.core.orca import CHANGE_TOL_MPS
+from runtime.decision.kinematics import diff_drive_step
 from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame
@@ -34,7 +36,11 @@ from runtime.decision.settle import Lander, Settle
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["Controller"]
+__all__ = ["HEADING_MIN_MOVE_M", "Controller"]
+
+HEADING_MIN_MOVE_M = 1e-3
+"""A move this long (m) or longer shows a differential-drive base's heading (up to a half
+turn, which its drive law does not tell apart)."""
 
 
 class Controller:
@@ -51,8 +57,14 @@ class Controller:
         world: WorldConfig = DEFAULT_WORLD,
         safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
         settle: Settle | None = None,
+        turn_rate_rps: float | None = None,
     ) -> None:
+        """``turn_rate_rps``: the robot's base is a differential drive that turns at most
+        this fast (:func:`runtime.decision.kinematics.diff_drive`); the safety filter's
+        guard then bounds what its wheels will drive, not only what it commands, from the
+        heading its own motion shows (None: a holonomic base)."""
         self.world = world
+        self._turn = turn_rate_rps
         self.safety = safety
         self._lander = Lander(settle, world.dt_s) if settle is not None else None
         self._brain = brain
@@ -86,6 +98,7 @@ class Controller:
         self._assignment: TeamAssignment | None = None  # its slots and potentials, kept
         self._vel: Array = np.zeros((1, 0, 2))  # the team's velocity estimates (m/s)
         self._plan = PlanFrame()
+        self._heading = math.nan  # a differential-drive base's, from its own motion (rad)
         if self._lander is not None:
             self._lander.reset()
 
@@ -188,6 +201,7 @@ class Controller:
         step: int | None = None,
         velocities: Array | None = None,
         filter_positions: Array | None = None,
+        guard_ref: Array | None = None,
     ) -> Decision:
         """Decide robot ``robot_index``'s velocity for this step.
 
@@ -202,7 +216,10 @@ class Controller:
         last two frames / dt. ``filter_positions``: (n, 2) where the safety filter takes
         the team to be (an estimator's positions carried forward to now), when the brain
         plans from others (the positions as sensed, so that a team does not chase its
-        own extrapolation); None: ``positions``.
+        own extrapolation); None: ``positions``. ``guard_ref``: (n, 5), each peer as
+        last sensed and this robot's pose then (m), and 1 where an update was lost, for the
+        filter's guard
+        (:class:`runtime.decision.local.Seen`); None: as they are now.
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.
         """
@@ -215,6 +232,11 @@ class Controller:
         i = robot_index
         if not self._brain.spec.accepts_team(n) or self._cc.shape[0] != n:
             return self._hold(t0, 0.0, 0.0, ERR_TEAM, -1)
+        if self._turn is not None:  # a base drives along its heading: its last move shows it
+            dx = float(pos[i, 0] - self._frames[1][i, 0])
+            dy = float(pos[i, 1] - self._frames[1][i, 1])
+            if math.hypot(dx, dy) > HEADING_MIN_MOVE_M:
+                self._heading = math.atan2(dy, dx)
         slots, cx, cy = self._assign(pos)  # 1. assign
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one
@@ -235,7 +257,20 @@ class Controller:
         horizon = landing(self.safety or OrcaParams(), steps_left, self.world)
         if filter_positions is not None:
             P = np.asarray(filter_positions, dtype=np.float64)[None]
-        vx, vy, changed, change = self._filter.robot(0, i, P, V, px, py, horizon)
+        ref = None if guard_ref is None else np.ascontiguousarray(guard_ref,
+                                                                   dtype=np.float64)[None]
+        vx, vy, changed, change = self._filter.robot(0, i, P, V, px, py, horizon, ref)
+        if self._turn is not None:  # what the wheels will drive of it, within the guard
+            if math.isfinite(self._heading):
+                fx, fy, _ = diff_drive_step(vx, vy, self._heading, self._turn,
+                                            self.world.dt_s)
+                k = self._filter.guard_scale(0, i, P, float(fx), float(fy), False, ref)
+            else:
+                k = self._filter.guard_scale(0, i, P, vx, vy, True, ref)
+            if k < 1.0:
+                vx, vy = vx * k, vy * k
+                change = math.hypot(vx - px, vy - py)
+                changed = change > CHANGE_TOL_MPS
         us = (time.perf_counter_ns() - t0) / 1000.0
         return Decision((vx, vy), (bvx, bvy), changed and self.safety is not None, change, us,
                         "", slot)

@@ -14,6 +14,8 @@ with the safety filter's margin widened by the uncertainty it knows it has
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from runtime.brain.brain import Brain
@@ -26,7 +28,34 @@ from runtime.decision.settle import settle_for
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["LocalDecisions", "Perception"]
+__all__ = ["LocalDecisions", "Perception", "Seen"]
+
+GUARD_HISTORY_STEPS = 32
+"""How far back (steps) a robot keeps its own poses, to pair each peer's last view with where
+the robot itself stood then (the safety filter's guard); a peer seen longer ago than this is
+paired with its estimate now."""
+
+
+@dataclass(frozen=True)
+class Seen:
+    """B robots' teams as each perceives them this step (see :meth:`Perception.perceive`)."""
+
+    plan: Array
+    """(B, n, 2) m: the team as the brain plans from it."""
+    now: Array | None = None
+    """(B, n, 2) m: the team as the safety filter takes it now (None: ``plan``)."""
+    vel: Array | None = None
+    """(B, n, 2) m/s: the team's velocities (None: frame differences)."""
+    guard_ref: Array | None = None
+    """(B, n, 5): each peer as last sensed and where the robot stood when it was (m), and 1
+    where the peer's last update was lost (older than the latency), for the filter's guard
+    (:meth:`runtime.core.orca.OrcaFilter.robot`; None: both as they are now)."""
+
+    def row(self, b: int) -> Seen:
+        """Robot ``b``'s team alone (its arrays without the B axis)."""
+        return Seen(self.plan[b], None if self.now is None else self.now[b],
+                    None if self.vel is None else self.vel[b],
+                    None if self.guard_ref is None else self.guard_ref[b])
 
 
 class Perception:
@@ -51,16 +80,39 @@ class Perception:
         tracked = estimator or not (conditions.sensing_perfect or naive)
         self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
                                    world=world) if tracked else None
+        self.observer = np.asarray(observer, dtype=np.int64)
+        self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
 
-    def perceive(self, truth: Array) -> tuple[Array, Array | None, Array | None]:
-        """(plan view (B, n, 2), filter view (B, n, 2) or None, velocities (B, n, 2) or None)
-        from each robot's team as it truly is now, ``truth`` (B, n, 2)."""
+    def perceive(self, truth: Array) -> Seen:
+        """Each robot's team this step, from the team as it truly is now, ``truth`` (B, n, 2).
+
+        With a tracker, the filter's guard pairs each peer's last sensed position (the raw
+        view: the tracker's smoothing lags a peer that turns or stops, by up to 10 cm in a
+        step, more than the noise it removes) with the robot's own pose at that step (its
+        age): both robots of a pair then bound their approach from the same moment,
+        whatever happened since, unseen."""
         view, age = self.sensor.sense(truth)
         if self.tracker is None:
-            return view, None, None
+            return Seen(view)
         now, vel, _ = self.tracker.update(view, age)
+        B = view.shape[0]
+        own = view[np.arange(B), self.observer]
+        if self._own is None or self._own.shape[1] != B:
+            self._own = np.repeat(own[None], GUARD_HISTORY_STEPS, axis=0)
+        else:
+            self._own = np.roll(self._own, 1, axis=0)
+            self._own[0] = own
+        ref = np.empty((*view.shape[:2], 5))
+        ref[..., 4] = age > self.conditions.latency_steps  # an update lost: bound it now too
+        ref[..., 0:2] = view  # as sensed: noisier than the tracker, but never lagging
+        a = np.clip(age, 0, GUARD_HISTORY_STEPS - 1)
+        ref[..., 2:4] = self._own[a, np.arange(B)[:, None]]
+        old = age >= GUARD_HISTORY_STEPS  # seen too long ago: the estimate now, as it is
+        if old.any():
+            ref[old, 0:2] = now[old]
+            ref[old, 2:4] = np.broadcast_to(own[:, None], now.shape)[old]
         plan = self.tracker.sensed if self.estimator else view  # smoothed, as sensed
-        return plan, now, vel
+        return Seen(plan, now, vel, ref)
 
 
 class LocalDecisions:
@@ -86,7 +138,8 @@ class LocalDecisions:
         self.safety = safety if safety is None or naive else uncertainty_params(
             safety, conditions, world)
         settle = None if naive else settle_for(conditions, estimator, world)
-        self.controllers = [Controller(brain, world, self.safety, settle)
+        self.controllers = [Controller(brain, world, self.safety, settle,
+                                       conditions.diff_turn_rps)
                             for _ in range(E * n)]
         self.step = 0
         self.last_view: Array | None = None
@@ -100,8 +153,8 @@ class LocalDecisions:
         sense, so their views stay current)."""
         E, n = self.n_envs, self.n_robots
         P = np.asarray(truth, dtype=np.float64)
-        view, now, vel_est = self.perception.perceive(np.repeat(P, n, axis=0))
-        self.last_view = view.reshape(E, n, n, 2)
+        seen = self.perception.perceive(np.repeat(P, n, axis=0))
+        self.last_view = seen.plan.reshape(E, n, n, 2)
         out = np.zeros((E, n, 2))
         slots = np.full((E, n), -1, dtype=np.int64)
         changed = np.zeros((E, n), dtype=bool)
@@ -111,9 +164,9 @@ class LocalDecisions:
             C = pattern[e]
             for i in range(n):
                 b = e * n + i
-                d = self.controllers[b].decide(
-                    i, view[b], C, self.step, None if vel_est is None else vel_est[b],
-                    None if now is None else now[b])
+                mine = seen.row(b)
+                d = self.controllers[b].decide(i, mine.plan, C, self.step, mine.vel, mine.now,
+                                               mine.guard_ref)
                 out[e, i] = d.velocity
                 slots[e, i] = d.slot
                 changed[e, i] = d.safety_changed

@@ -90,7 +90,7 @@ import zenoh
 from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
 from runtime.decision.controller import Controller
-from runtime.decision.local import Perception
+from runtime.decision.local import Perception, Seen
 from runtime.decision.patterns import PatternError
 from runtime.decision.pipeline import ERR_NONFINITE, Decision
 from runtime.decision.safety import OrcaParams
@@ -167,9 +167,10 @@ class Robot:
         self.id = cfg.robot_id
         self.log = log if log is not None else Log(f"robot {cfg.robot_id}", False)
         self.controller = Controller(brain, world, safety,
-                                     settle_for(cfg.conditions, cfg.estimator, world))
+                                     settle_for(cfg.conditions, cfg.estimator, world),
+                                     cfg.conditions.diff_turn_rps)
         self._perception: Perception | None = None  # for the team of the last decision
-        self._perceived: tuple[int, tuple[Array, Array | None, Array | None]] | None = None
+        self._perceived: tuple[int, Seen] | None = None
         self._fallback: Controller | None = None  # decides the steps a brain's NaN would lose
         self._fallback_step = -2  # the last step it decided (its history is fresh after it)
         self.stats = RobotStats()
@@ -404,10 +405,10 @@ class Robot:
                     if dx or dy:
                         positions = positions.copy()
                         positions[me] += (dx, dy)
-                seen: tuple[Array, Array | None, Array | None] = (
-                    (positions, None, None) if self._perception is None
-                    else self._perceive(step, positions))
-                d = self.controller.decide(me, seen[0], pattern, step.step, seen[2], seen[1])
+                seen = (Seen(positions) if self._perception is None
+                        else self._perceive(step, positions))
+                d = self.controller.decide(me, seen.plan, pattern, step.step, seen.vel,
+                                           seen.now, seen.guard_ref)
                 if d.error == ERR_NONFINITE:
                     d = self._nonfinite(step, pattern, d, seen)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
@@ -428,19 +429,18 @@ class Robot:
         self._perceived = None
         return Perception(c, np.array([index]), [seed], self.cfg.estimator, self.world)
 
-    def _perceive(self, step: Step, positions: Array) -> tuple[Array, Array | None, Array | None]:
+    def _perceive(self, step: Step, positions: Array) -> Seen:
         """This step's team (``positions``, the poses of ``step``) as the robot perceives it:
         sensed once per world step (a repeated step in realtime reuses it, so latency counts
         world steps)."""
         assert self._perception is not None
         if self._perceived is None or self._perceived[0] != step.step:
-            plan, now, vel = self._perception.perceive(np.asarray(positions)[None])
-            self._perceived = (step.step, (plan[0], None if now is None else now[0],
-                                           None if vel is None else vel[0]))
+            self._perceived = (step.step,
+                               self._perception.perceive(np.asarray(positions)[None]).row(0))
         return self._perceived[1]
 
     def _nonfinite(self, step: Step, pattern: Array, d: Decision,
-                   seen: tuple[Array, Array | None, Array | None]) -> Decision:
+                   seen: Seen) -> Decision:
         """A step whose brain output is not finite: counted, and decided by the fallback."""
         self.stats.nonfinite()
         if self.cfg.nonfinite_fallback == "hold":
@@ -452,7 +452,8 @@ class Robot:
                                                                                  self.world)
             fb = self._fallback = Controller(
                 rule, self.world, self.controller.safety,
-                settle_for(self.cfg.conditions, self.cfg.estimator, self.world))
+                settle_for(self.cfg.conditions, self.cfg.estimator, self.world),
+                self.cfg.conditions.diff_turn_rps)
         if self._fallback_step != step.step - 1:  # not the step after its last: no history
             fb.reset()
             self.log("warning", "fallback", f"{ERR_NONFINITE.split(':')[0]}: "
@@ -460,7 +461,8 @@ class Robot:
             self.stats.error(f"{ERR_NONFINITE.split(':')[0]}: decided by {fb.brain.brain_id}",
                              count=False)
         self._fallback_step = step.step
-        fd = fb.decide(step.ids.index(self.id), seen[0], pattern, step.step, seen[2], seen[1])
+        fd = fb.decide(step.ids.index(self.id), seen.plan, pattern, step.step, seen.vel,
+                       seen.now, seen.guard_ref)
         return d if fd.error else fd
 
     def _send(self, step: int, d: Decision) -> None:

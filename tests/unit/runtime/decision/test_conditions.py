@@ -167,27 +167,37 @@ def test_a_team_on_late_or_gappy_views_forms_and_holds_with_the_tracker() -> Non
 
 def test_the_filter_on_the_tracker_keeps_a_noisy_crowd_apart() -> None:
     """Robots that see each other with 5 cm noise: a filter on the raw views (velocities from
-    their frame differences) lets them collide; on the tracker's estimates it does not
-    (same seeds, ground truth)."""
+    their frame differences, no margin, no guard: ``naive``) lets them collide; the robots'
+    own filter does not (same seeds, ground truth)."""
     from runtime.brain.brain import load_brain
-    from runtime.decision import local
     from trainer.evaluate import evaluate_brain
 
     brain = load_brain("rule:assign")
     kw = {"conditions": parse_conditions("noise_m=0.05"), "progress": False}
     safe = evaluate_brain(brain, "heart", 10, 4, seed=5, **kw)
-    perceive = local.Perception.perceive
-
-    def raw(self: local.Perception, truth: np.ndarray) -> tuple[np.ndarray, None, None]:
-        return self.sensor.sense(truth)[0], None, None
-
-    try:
-        local.Perception.perceive = raw  # type: ignore[assignment,method-assign]
-        bare = evaluate_brain(brain, "heart", 10, 4, seed=5, **kw)
-    finally:
-        local.Perception.perceive = perceive  # type: ignore[method-assign]
+    bare = evaluate_brain(brain, "heart", 10, 4, seed=5, naive=True, **kw)
     assert bare.collisions > 0
     assert safe.collisions == 0 and safe.min_separation_m >= 0.2
+
+
+@pytest.mark.parametrize(("spec", "bare_collides"), [
+    ("noise_m=0.05", True), ("latency_steps=2", True), ("loss=0.3", True),
+    ("gain_noise=0.1,act_noise_mps=0.02", False), ("kinematics=diff,turn_rate_rps=2", True),
+    ("realistic", True)])
+def test_a_brain_that_charges_its_nearest_peer_never_reaches_it(spec: str,
+                                                                 bare_collides: bool) -> None:
+    """Every robot drives at full speed at its nearest peer: the safety filter is the last
+    word, and it keeps the team apart in ground truth under each condition up to the stated
+    limits; the same team without what the robots know of their uncertainty (``naive``)
+    collides, except with noisy wheels alone, which ORCA's fixed margin already covers."""
+    from trainer.adversary import ChargeBrain
+    from trainer.evaluate import evaluate_brain
+
+    kw = {"conditions": parse_conditions(spec), "progress": False, "hold_steps": 0}
+    safe = evaluate_brain(ChargeBrain(), "random", 10, 2, seed=11, **kw)
+    bare = evaluate_brain(ChargeBrain(), "random", 10, 2, seed=11, naive=True, **kw)
+    assert safe.collisions == 0 and safe.min_separation_m >= 0.2 - 1e-9
+    assert (bare.collisions > 0) == bare_collides
 
 
 def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None:
