@@ -51,11 +51,14 @@ class Perception:
         tracked = estimator or not (conditions.sensing_perfect or naive)
         self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
                                    world=world) if tracked else None
+        self.last_age: IntArray | None = None
+        """(B, n) the age in steps of each position of the last views sensed."""
 
     def perceive(self, truth: Array) -> tuple[Array, Array | None, Array | None]:
         """(plan view (B, n, 2), filter view (B, n, 2) or None, velocities (B, n, 2) or None)
         from each robot's team as it truly is now, ``truth`` (B, n, 2)."""
         view, age = self.sensor.sense(truth)
+        self.last_age = age
         if self.tracker is None:
             return view, None, None
         now, vel, _ = self.tracker.update(view, age)
