@@ -67,7 +67,7 @@ def format_report(r: RunReport) -> str:
         out.append(f"skipped {n} {what}")
     if not r.phases:
         out.append("no pattern phase in the log")
-        return "\n".join(out)
+        return "\n".join(out + _estimation(r))
     header = ["#", "pattern", "n", "formed", "steps", "lb", "x lb", "travel m", "lb m", "x lb",
               "coll", "min sep m", "final err m", "misses", "stale (ages)", "guard", "swaps",
               "joined", "lost", "brains"]
