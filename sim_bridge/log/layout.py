@@ -75,7 +75,10 @@ recorder's writer could not keep up with and dropped, counted, at the end).
 entity per robot (entity id = the robot id, a cylinder of diameter 2R at its
 position), an entity ``targets`` (a small sphere at each target slot, placed on
 the team's centroid) and ``arena`` (the walls as a line loop). A robot that left
-is deleted by id. The log opens in Foxglove's 3D panel without custom panels.
+is deleted by id. Robots under imperfect sensing add ``perceived/<id>``: small
+translucent spheres of the robot's colour where it believed its peers to be, drawn
+when a new view of it came and kept until the next. The log opens in Foxglove's 3D
+panel without custom panels.
 
 Durability: chunks are small and the writer is flushed regularly
 (:class:`sim_bridge.log.recorder.Recorder`), so a writer killed with SIGKILL leaves a

@@ -13,11 +13,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from patternrl.cli import main as cli
 from runtime.decision.formation import assign_slots, slot_distances
 from runtime.wire import keys
 from runtime.world_config import DEFAULT_WORLD
+from sim_bridge.log.layout import SCENE_TOPIC
 from sim_bridge.log.reader import read_log
 
 pytestmark = pytest.mark.timeout(180)
@@ -79,6 +81,12 @@ def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
         assert len(steps) >= 2 and run.topics[keys.view_key(swarm, i)] == len(steps)
         assert (np.diff(steps) >= every).all()
     assert views.peer.tolist() and set(views.peer.tolist()) <= set(range(n))
+
+    with open(log, "rb") as f:  # the scene draws the perceived peers as views come
+        scenes = [json.loads(msg.data) for _, _, msg in
+                  make_reader(f).iter_messages(topics=[SCENE_TOPIC])]
+    drawn = {e["id"] for sc in scenes for e in sc["entities"]}
+    assert {f"perceived/{i}" for i in range(n)} <= drawn
 
     assert cli(["replay", str(log), "--json"]) == 0
     est = json.loads(capsys.readouterr().out)["estimation"]
