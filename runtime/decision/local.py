@@ -82,6 +82,8 @@ class Perception:
                                    world=world) if tracked else None
         self.observer = np.asarray(observer, dtype=np.int64)
         self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
+        self.last_age: IntArray | None = None
+        """(B, n) the age in steps of each position of the last views sensed."""
 
     def perceive(self, truth: Array) -> Seen:
         """Each robot's team this step, from the team as it truly is now, ``truth`` (B, n, 2).
@@ -92,6 +94,7 @@ class Perception:
         age): both robots of a pair then bound their approach from the same moment,
         whatever happened since, unseen."""
         view, age = self.sensor.sense(truth)
+        self.last_age = age
         if self.tracker is None:
             return Seen(view)
         now, vel, _ = self.tracker.update(view, age)

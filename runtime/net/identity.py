@@ -9,9 +9,10 @@ identity        may publish (Zenoh ``put`` / liveliness token / reply)
 ``world``       every robot's ``pose``, all poses of a step (``poses``), the
                 ``pattern`` (and replies to pattern queries), the ``brain`` of
                 each pattern between phases, liveliness ``alive/world``
-``robot-<i>``   its own ``robot/<i>/cmd`` and ``robot/<i>/status``, liveliness
-                ``alive/<i>``, and its own ``robot/<i>/pose`` (a robot that knows
-                where it is: ``robot --ros2``, a real swarm without a world)
+``robot-<i>``   its own ``robot/<i>/cmd``, ``robot/<i>/status`` and ``robot/<i>/view``
+                (the team as it perceived it), liveliness ``alive/<i>``, and its own
+                ``robot/<i>/pose`` (a robot that knows where it is: ``robot --ros2``,
+                a real swarm without a world)
 ``operator``    ``brain`` and ``operator/pattern`` (a pattern between the world's phases:
                 only the world puts on ``pattern``, which keeps its phases from
                 being locked out, :mod:`runtime.decision.team_pattern`)
@@ -187,6 +188,7 @@ def access_control(swarm: str, n_robots: int, hears_robots: bool = True) -> dict
         name = robot_identity(i)
         rules.append(_rule(f"{name}-put", ["put"], [keys.cmd_key(swarm, i),
                                                    keys.status_key(swarm, i),
+                                                   keys.view_key(swarm, i),
                                                    keys.pose_key(swarm, i)], ingress))
         rules.append(_rule(f"{name}-alive", ["liveliness_token"], [keys.alive_key(swarm, i)],
                            ingress))

@@ -16,10 +16,13 @@ from runtime.ros2.options import Ros2Options, add_ros2_arguments, ros2_options_f
 from runtime.wire import keys
 from runtime.world_config import WorldConfig
 
-__all__ = ["FALLBACK_RULE", "NONFINITE_FALLBACKS", "RobotConfig", "add_arguments",
+__all__ = ["FALLBACK_RULE", "NONFINITE_FALLBACKS", "VIEW_EVERY", "RobotConfig", "add_arguments",
            "config_from_args"]
 
 NONFINITE_FALLBACKS = ("rule", "hold")
+VIEW_EVERY = 10
+"""Steps between two views a robot under imperfect sensing publishes, by default: a 100-robot
+swarm at 10 Hz sends 100 views a second (about 240 KB), a tenth of its poses' messages."""
 FALLBACK_RULE = "rule:frame-balanced"
 """The rule a robot falls back on when its brain's output is not finite: the shipped plan
 brains' own base, so a step decided by it is the step the brain was built on."""
@@ -52,6 +55,9 @@ class RobotConfig:
     """Seeds the simulated sensing (with the robot id)."""
     estimator: bool = False
     """Track peers (``runtime.decision.estimator``) and decide on the estimates."""
+    view_every: int = VIEW_EVERY
+    """Under imperfect sensing, publish the team as perceived (a
+    :class:`runtime.wire.messages.View`) for one decision every this many steps (0: never)."""
     ros2: Ros2Options | None = None
     """A ROS 2 robot: pose from a ROS 2 topic, command as a Twist (``--ros2``)."""
     debug_delay_ms: float = 0.0
@@ -144,6 +150,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cg.add_argument("--estimator", action="store_true",
                     help="track each peer (alpha-beta filter, latency compensation) and decide "
                     "on the estimates")
+    cg.add_argument("--view-every", type=int, default=VIEW_EVERY, metavar="N",
+                    help="under imperfect --conditions, publish the team as this robot perceived "
+                    "it (robot/<id>/view) for one decision every N steps, so the log holds "
+                    "it and 'patternrl replay' reports the estimation error; 0: never "
+                    f"(default {VIEW_EVERY})")
     g = parser.add_argument_group("safety filter (ORCA)")
     d = OrcaParams()
     g.add_argument("--safety", choices=("orca", "off"), default="orca", help="(default orca)")
@@ -223,6 +234,8 @@ def config_from_args(
     ):
         if not (math.isfinite(v) and v >= 0):
             raise InputError(f"{name} must be >= 0, got {v}")
+    if args.view_every < 0:
+        raise InputError(f"--view-every must be >= 0 (0: no views), got {args.view_every}")
     if args.orca_max_neighbours < 1:
         raise InputError("--orca-max-neighbours must be >= 1")
     conditions = parse_conditions(args.conditions)
@@ -264,6 +277,7 @@ def config_from_args(
         conditions=conditions,
         estimator=args.estimator,
         sensing_seed=args.sensing_seed,
+        view_every=args.view_every,
         ros2=ros2,
     )
     if safety is not None:

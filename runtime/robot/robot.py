@@ -48,6 +48,13 @@ with ``swap_request_id``, ``swap_accepted``, ``swap_reason`` and the old and
 new brain ids, published at once. A refused brain leaves the old one running.
 A manifest ``{"rule": "rule:assign"}`` with no ONNX bytes swaps in a rule brain.
 
+View: under imperfect sensing (``--conditions`` other than perfect), once every
+``--view-every`` steps (default 10; 0: never) the team as the robot perceived it for that
+step's decision (:class:`runtime.wire.messages.View`: its tracker's estimate of where each
+member is at the step, or the view as sensed without a tracker, and each member's age), on
+the robot's view key, right after the step's command: the log keeps it beside the world's
+ground truth, and ``patternrl replay`` reports the estimation error.
+
 Status: about once a second on the robot's status key (decision latency p50 and
 p99 over the last period, loop jitter = p99 - p50 of the interval between
 consecutive decisions, messages dropped, errors, safety interventions).
@@ -109,9 +116,11 @@ from runtime.wire import keys
 from runtime.wire.messages import (
     Command,
     MessageError,
+    View,
     decode_pattern,
     encode_command,
     encode_status,
+    encode_view,
 )
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -213,6 +222,9 @@ class Robot:
         self._pose_sub: zenoh.Subscriber[None] | None = None
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
         self._ros2: Ros2Link | None = None  # --ros2: the pose from ROS 2, the command to it
+        self._view_pub: zenoh.Publisher | None = None  # under imperfect sensing (--view-every)
+        self._view_step = -math.inf  # the step of the last view staged
+        self._view: View | None = None  # staged by the decision, sent after its command
 
     # ------------------------------------------------------------- lifecycle
 
@@ -225,6 +237,10 @@ class Robot:
         self._status_pub = z.enter_context(
             s.declare_publisher(keys.status_key(sw, self.id), express=True)
         )
+        if self.cfg.view_every > 0 and not self.cfg.conditions.sensing_perfect:
+            self._view_pub = z.enter_context(
+                s.declare_publisher(keys.view_key(sw, self.id), express=True)
+            )
         z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
         # per-robot poses until the first all-poses message (then undeclared: O(1) a step)
         self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
@@ -407,6 +423,8 @@ class Robot:
                         positions[me] += (dx, dy)
                 seen = (Seen(positions) if self._perception is None
                         else self._perceive(step, positions))
+                if self._view_pub is not None and self._perception is not None:
+                    self._stage_view(step, seen)
                 d = self.controller.decide(me, seen.plan, pattern, step.step, seen.vel,
                                            seen.now, seen.guard_ref)
                 if d.error == ERR_NONFINITE:
@@ -439,6 +457,31 @@ class Robot:
                                self._perception.perceive(np.asarray(positions)[None]).row(0))
         return self._perceived[1]
 
+    def _stage_view(self, step: Step, seen: Seen) -> None:
+        """Keep this step's perceived team to send after its command, once every
+        ``--view-every`` steps: the tracker's estimate of the team now, else the plan's view."""
+        if step.step - self._view_step < self.cfg.view_every:
+            return
+        assert self._perception is not None
+        age = self._perception.last_age
+        if age is None:
+            return
+        self._view_step = step.step
+        xy = seen.plan if seen.now is None else seen.now
+        try:
+            self._view = View(self.id, step.step, np.asarray(step.ids), xy, age[0])
+        except MessageError as e:
+            self.stats.error(f"view: {e}")
+
+    def _publish_view(self) -> None:
+        view, self._view = self._view, None
+        if view is None or self._view_pub is None:
+            return
+        try:
+            self._view_pub.put(encode_view(view))
+        except MessageError as e:
+            self.stats.error(f"view: {e}")
+
     def _nonfinite(self, step: Step, pattern: Array, d: Decision,
                    seen: Seen) -> Decision:
         """A step whose brain output is not finite: counted, and decided by the fallback."""
@@ -467,6 +510,8 @@ class Robot:
 
     def _send(self, step: int, d: Decision) -> None:
         self._publish_cmd(step, d)
+        if self._view is not None:
+            self._publish_view()
         if self._in_flight is not None:
             self._in_flight.sent(step, d.velocity[0], d.velocity[1], time.monotonic(),
                                  self.inbox.newest_step)

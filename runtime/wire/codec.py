@@ -34,6 +34,7 @@ class Tag(IntEnum):
     PATTERN = 4
     BRAIN = 5
     POSES = 6
+    VIEW = 7
 
 
 VERSION: Final = 1

@@ -46,12 +46,17 @@ __all__ = [
     "MAX_REQUEST_ID_BYTES",
     "MAX_STATUS_BYTES",
     "MAX_TARGET_ROBOTS",
+    "MAX_VIEW_COORD_M",
+    "MAX_VIEW_ROBOTS",
     "PATTERN",
     "POSE",
     "POSES_HEAD",
     "POSES_ROW",
     "STATUS",
     "UINT_MAX",
+    "VIEW",
+    "VIEW_HEAD",
+    "VIEW_ROW",
     "Field",
     "FieldTable",
 ]
@@ -69,6 +74,11 @@ MAX_TARGET_ROBOTS: Final = 65_536
 MAX_STATUS_BYTES: Final = 64 << 10
 MAX_POSES_ROBOTS: Final = 4096
 """Robots one pose batch may carry: 40x the largest team the design budgets (100)."""
+MAX_VIEW_ROBOTS: Final = MAX_POSES_ROBOTS
+"""Team members one robot's view may carry: as many as a pose batch."""
+MAX_VIEW_COORD_M: Final = 1e6
+"""A perceived position farther from the origin is refused: as far as a robot takes a pose
+(``runtime.robot.inbox.MAX_COORD_M``)."""
 
 KINDS: Final[dict[str, tuple[str, str, str]]] = {
     # kind: (struct code, protobuf type, protobuf type in a fixed-width message)
@@ -288,3 +298,33 @@ BRAIN: Final = FieldTable("brain", "BrainSwap", (
 ))
 """Operator -> robots: a brain to swap in (:class:`runtime.wire.messages.BrainMsg`, whose
 ``onnx_bytes`` is ``onnx`` here); on the wire each field is uint32-length-prefixed."""
+
+VIEW: Final = FieldTable("view", "RobotView", (
+    Field("robot_id", "u32", 1),
+    Field("step", "u64", 2),
+    Field("ids", "u32", 3, repeated=True, max_items=MAX_VIEW_ROBOTS),
+    Field("x", "f64", 4, "m", repeated=True, lo=-MAX_VIEW_COORD_M, hi=MAX_VIEW_COORD_M,
+          max_items=MAX_VIEW_ROBOTS),
+    Field("y", "f64", 5, "m", repeated=True, lo=-MAX_VIEW_COORD_M, hi=MAX_VIEW_COORD_M,
+          max_items=MAX_VIEW_ROBOTS),
+    Field("age_steps", "u32", 6, "steps", repeated=True, max_items=MAX_VIEW_ROBOTS),
+))
+"""Robot -> anyone: the team as one robot perceived it for its decision of a step
+(:class:`runtime.wire.view.View`); on the wire a fixed part (:data:`VIEW_HEAD`) and one
+:data:`VIEW_ROW` per team member, in a log four repeated fields."""
+
+VIEW_HEAD: Final = FieldTable("view", "", (
+    Field("robot_id", "u32"),
+    Field("step", "u64"),
+    Field("n", "u32", hi=MAX_VIEW_ROBOTS),
+))
+"""The fixed part of a view on the wire; ``n`` :data:`VIEW_ROW` records follow."""
+
+VIEW_ROW: Final = FieldTable("view", "", (
+    Field("id", "u32"),
+    Field("x", "f64", unit="m", lo=-MAX_VIEW_COORD_M, hi=MAX_VIEW_COORD_M),
+    Field("y", "f64", unit="m", lo=-MAX_VIEW_COORD_M, hi=MAX_VIEW_COORD_M),
+    Field("age_steps", "u32", unit="steps"),
+), header=False)
+"""One team member of a view: its id, its perceived position, the age of its last sensed
+update; ids strictly ascending, the sender's own among them."""

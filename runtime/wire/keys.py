@@ -6,6 +6,7 @@ Layout (``<swarm>`` is one name of ``[A-Za-z0-9_-]+``, ``<id>`` a robot id >= 0)
     patternrl/<swarm>/poses               world -> robots    every live robot's pose of a step
     patternrl/<swarm>/robot/<id>/cmd      robot -> world     commanded velocity, step, brain id
     patternrl/<swarm>/robot/<id>/status   robot -> anyone    brain id, latency, errors, swaps
+    patternrl/<swarm>/robot/<id>/view     robot -> anyone    the team as the robot perceived it
     patternrl/<swarm>/pattern             world -> all       target pattern, version (phases)
     patternrl/<swarm>/operator/pattern    operator -> all    a target between the world's
     patternrl/<swarm>/brain               operator -> robots  a new brain to swap in
@@ -27,19 +28,20 @@ WORLD_ID: Final = "world"
 POSE: Final = "pose"
 CMD: Final = "cmd"
 STATUS: Final = "status"
-ROBOT_CHANNELS: Final = (POSE, CMD, STATUS)
+VIEW: Final = "view"
+ROBOT_CHANNELS: Final = (POSE, CMD, STATUS, VIEW)
 PATTERN: Final = "pattern"
 POSES: Final = "poses"
 BRAIN: Final = "brain"
 ALIVE: Final = "alive"
 OPERATOR_PATTERN: Final = "operator_pattern"
-KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES, OPERATOR_PATTERN)
+KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES, OPERATOR_PATTERN, VIEW)
 """Every kind of key, as :attr:`Key.kind` names it."""
 
 _SWARM_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ALIVE_ID_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ANY_KEY_RE: Final = re.compile(
-    r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status)"
+    r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status|view)"
     r"|(pattern|brain|poses|operator/pattern)|alive/([A-Za-z0-9_-]+))"
 )
 _ROBOT_ID_RE: Final = re.compile(r"0|[1-9][0-9]*")
@@ -108,6 +110,17 @@ def all_status(swarm: str) -> str:
     return _all_robots(swarm, STATUS)
 
 
+def view_key(swarm: str, robot_id: int) -> str:
+    """The team as one robot perceived it (:class:`runtime.wire.messages.View`), published
+    by that robot now and then under imperfect sensing."""
+    return _robot_key(swarm, robot_id, VIEW)
+
+
+def all_views(swarm: str) -> str:
+    """Perceived teams of every robot of the swarm."""
+    return _all_robots(swarm, VIEW)
+
+
 def pattern_key(swarm: str) -> str:
     """Current target pattern of the swarm."""
     return f"{PREFIX}/{validate_swarm(swarm)}/pattern"
@@ -139,7 +152,7 @@ def all_alive(swarm: str) -> str:
 
 
 def parse_robot_id(key: str) -> int | None:
-    """The robot id in a robot key (pose, cmd, status or an int alive id), else None.
+    """The robot id in a robot key (pose, cmd, status, view or an int alive id), else None.
 
     ``None`` for any key not built by this module for one robot: another prefix, an
     invalid swarm name, a wildcard, a non-decimal or zero-padded id, the world's alive key.
@@ -155,7 +168,7 @@ class Key(NamedTuple):
     kind: str
     """One of :data:`KINDS`."""
     robot_id: int | None
-    """The robot a pose, cmd, status or alive key belongs to; None otherwise (and for
+    """The robot a pose, cmd, status, view or alive key belongs to; None otherwise (and for
     the world's alive key)."""
     alive_id: str | None = None
     """The raw id of an alive key (``"world"`` or a robot id), else None."""

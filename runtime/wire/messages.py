@@ -17,6 +17,9 @@ but :data:`COMMAND_VERSION` for a command; decoders also read older ones)::
     Brain    <BB> + 3 x (<I> + bytes) + <I> + ids  request_id, manifest_json (utf-8),
                                                   onnx bytes, then n target ids as uint32
     Poses    <BB Q d I> + n x <I d d d d>         all poses of a step: runtime/pose_batch.py
+    View     <BB I Q I> + n x <I d d I>           tag, version, robot_id, step, n; per team
+                                                  member id, x, y, age_steps: the team as the
+                                                  robot perceived it (runtime/wire/view.py)
 
 Every decoder bounds a message before it uses it: sizes first (a length or count field is
 checked against its documented maximum, ``MAX_*`` below, and against the bytes that are
@@ -77,6 +80,7 @@ from runtime.wire.fields import (
     Field,
 )
 from runtime.wire.pose_batch import PoseBatch, decode_poses, encode_poses
+from runtime.wire.view import MAX_VIEW_ROBOTS, View, check_view, decode_view, encode_view
 from runtime.world_config import MAX_PATTERN_COORD_M
 
 # The layouts below (struct formats, numpy records, the fields a decoder checks) follow from
@@ -97,6 +101,7 @@ __all__ = [
     "MAX_REQUEST_ID_BYTES",
     "MAX_STATUS_BYTES",
     "MAX_TARGET_ROBOTS",
+    "MAX_VIEW_ROBOTS",
     "POSE_DTYPE",
     "VERSION",
     "BrainMsg",
@@ -109,6 +114,8 @@ __all__ = [
     "PoseBatch",
     "Status",
     "Tag",
+    "View",
+    "check_view",
     "command_dtype",
     "decode",
     "decode_brain",
@@ -117,6 +124,7 @@ __all__ = [
     "decode_pose",
     "decode_poses",
     "decode_status",
+    "decode_view",
     "encode",
     "encode_brain",
     "encode_command",
@@ -124,6 +132,7 @@ __all__ = [
     "encode_pose",
     "encode_poses",
     "encode_status",
+    "encode_view",
 ]
 
 # -- Pose -----------------------------------------------------------------------------------
@@ -559,7 +568,7 @@ def decode_brain(payload: Buffer) -> BrainMsg:
 
 # -- any message ----------------------------------------------------------------------------
 
-Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg | PoseBatch
+Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg | PoseBatch | View
 
 _ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
     Pose: encode_pose,
@@ -568,6 +577,7 @@ _ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
     PatternMsg: encode_pattern,
     BrainMsg: encode_brain,
     PoseBatch: encode_poses,
+    View: encode_view,
 }
 
 _DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
@@ -577,6 +587,7 @@ _DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
     Tag.PATTERN: decode_pattern,
     Tag.BRAIN: decode_brain,
     Tag.POSES: decode_poses,
+    Tag.VIEW: decode_view,
 }
 
 

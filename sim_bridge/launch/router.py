@@ -16,7 +16,7 @@ Security is the swarm's, unchanged: the router speaks as the ``router``
 identity (mutual TLS: a member without a certificate of the swarm's authority
 cannot connect) and enforces the swarm's access rules on every message it
 receives, by the certificate of the link it came in on (robot i may publish
-only its own ``cmd``, ``status`` and ``alive/i``; see :mod:`runtime.net.identity`).
+only its own ``cmd``, ``status``, ``view`` and ``alive/i``; see :mod:`runtime.net.identity`).
 What it relays, its receivers accept as the router's (``router-relay`` rule).
 
 The process holds no Python callbacks: all the routing is zenoh's own threads.

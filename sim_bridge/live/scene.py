@@ -1,4 +1,5 @@
-"""The Foxglove scene of one step: a disc and a label per robot, the targets, the arena.
+"""The Foxglove scene of one step: a disc and a label per robot, the targets, the arena, and
+where robots under imperfect sensing believed their peers to be (their latest views).
 
 :func:`scene_update` builds one ``foxglove.SceneUpdate`` as an object (what
 ``/world/scene`` holds, JSON-encoded); :func:`scene_json` gives the very bytes
@@ -24,7 +25,7 @@ import numpy as np
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from sim_bridge.log.layout import SCENE_FRAME
 
-__all__ = ["scene_json", "scene_update"]
+__all__ = ["perceived_id", "scene_json", "scene_update"]
 
 _IDENTITY: Final = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 
@@ -51,6 +52,11 @@ def _entity(stamp: dict[str, int], eid: str, **prims: list[dict[str, Any]]) -> d
     return ent
 
 
+def perceived_id(robot_id: int) -> str:
+    """The entity of what robot ``robot_id`` perceived of its peers."""
+    return f"perceived/{int(robot_id)}"
+
+
 def scene_update(
     log_time_ns: int,
     robots: Sequence[tuple[int, float, float]],
@@ -58,8 +64,16 @@ def scene_update(
     removed: Sequence[int] = (),
     arena_m: float | None = None,
     world: WorldConfig = DEFAULT_WORLD,
+    *,
+    perceived: Sequence[tuple[int, np.ndarray]] = (),
+    perceived_removed: Sequence[int] = (),
 ) -> dict[str, Any]:
-    """One ``foxglove.SceneUpdate``: a disc per robot (id = robot id), targets, walls."""
+    """One ``foxglove.SceneUpdate``: a disc per robot (id = robot id), targets, walls.
+
+    ``perceived``: (robot id, (k, 2) metres) where that robot believed its k peers to be,
+    each drawn as a small translucent sphere of its colour, entity :func:`perceived_id`
+    (kept until the robot's next view replaces it); ``perceived_removed``: robots whose such
+    entity goes."""
     stamp = {"sec": log_time_ns // 1_000_000_000, "nsec": log_time_ns % 1_000_000_000}
     d = 2.0 * world.radius_m
     height = 0.5 * world.radius_m
@@ -88,7 +102,17 @@ def scene_update(
                 "thickness": 0.02, "scale_invariant": False, "points": corners,
                 "color": {"r": 0.8, "g": 0.8, "b": 0.8, "a": 1.0}, "colors": [], "indices": []}
         entities.append(_entity(stamp, "arena", lines=[loop]))
+    s = 0.6 * world.radius_m
+    for rid, peers in perceived:
+        colour = {**_colour(rid), "a": 0.35}
+        spheres = [{"pose": {"position": {"x": float(x), "y": float(y), "z": 0.0},
+                             "orientation": _IDENTITY},
+                    "size": {"x": s, "y": s, "z": s}, "color": colour}
+                   for x, y in np.asarray(peers, dtype=np.float64).reshape(-1, 2).tolist()]
+        entities.append(_entity(stamp, perceived_id(rid), spheres=spheres))
     deletions = [{"timestamp": stamp, "type": 0, "id": str(r)} for r in removed]
+    deletions += [{"timestamp": stamp, "type": 0, "id": perceived_id(r)}
+                  for r in perceived_removed]
     return {"deletions": deletions, "entities": entities}
 
 
@@ -142,14 +166,20 @@ def scene_json(
     removed: Sequence[int] = (),
     arena_m: float | None = None,
     world: WorldConfig = DEFAULT_WORLD,
+    *,
+    perceived: Sequence[tuple[int, np.ndarray]] = (),
+    perceived_removed: Sequence[int] = (),
 ) -> bytes:
     """``json.dumps(scene_update(...), separators=(",", ":"), allow_nan=False).encode()``,
-    byte for byte, at a fraction of the cost (see the module docstring)."""
+    byte for byte, at a fraction of the cost (see the module docstring; the perceived peers,
+    drawn only when new views came, take the object's way)."""
     coords = [c for _, x, y in robots for c in (x, y)]
     if targets is not None:
         coords += np.asarray(targets, dtype=np.float64).ravel().tolist()
     if not all(isinstance(c, float) and math.isfinite(c) for c in coords):
-        return _dumps(scene_update(log_time_ns, robots, targets, removed, arena_m, world)).encode()
+        return _dumps(scene_update(log_time_ns, robots, targets, removed, arena_m, world,
+                                   perceived=perceived,
+                                   perceived_removed=perceived_removed)).encode()
     tpl = _CACHE.get(world)
     if tpl is None:
         tpl = _CACHE[world] = _Templates(world)
@@ -160,7 +190,8 @@ def scene_json(
         xs, ys = repr(x), repr(y)
         out.append("".join((f[0], sec, f[1], nsec, f[2], xs, f[3], ys, f[4], xs, f[5], ys,
                             f[6])))
-    rest = scene_update(log_time_ns, [], None, removed, arena_m, world)  # arena, deletions
+    rest = scene_update(log_time_ns, [], None, removed, arena_m, world,  # arena, deletions
+                        perceived=perceived, perceived_removed=perceived_removed)
     if targets is not None and len(targets):
         (h, tail), sp = tpl.targets, tpl.sphere
         spheres = ",".join(sp[0] + repr(tx) + sp[1] + repr(ty) + sp[2]

@@ -24,6 +24,10 @@ kind                messages  bytes      a normal swarm (measured or by design)
                                          10 Hz: 36 KB/s; 10 at 213 steps/s: 82 KB/s)
 ``status``          20        256 KiB    about one a second (and one per swap
                                          answer), under 1 KB; four 64 KiB ones fit
+``view``            50        512 KiB    one per ``--view-every`` steps (10: <= 22 a
+                                         second at 213 steps/s), 18 + 24 n bytes
+                                         (2.4 KB at 100 robots); one a step at 10 Hz
+                                         fits, four of the largest (4096 robots) too
 ``pattern``,        50        4 MiB      about one a second and one per phase or
 ``operator_pattern``                     resize; <= 64 KiB (4096 points)
 ``brain``           10        130 MiB    one per swap; a largest brain (64 MiB
@@ -31,7 +35,7 @@ kind                messages  bytes      a normal swarm (measured or by design)
 anything else       100       64 KiB     (nothing of ours)
 ==================  ========  =========  ==========================================
 
-So a robot that floods both of its keys costs the log at most 512 KiB a second.
+So a robot that floods all three of its keys costs the log at most 1 MiB a second.
 At most :data:`MAX_KEYS` keys have their own bucket; keys beyond share one.
 """
 
@@ -63,6 +67,7 @@ BUDGETS: Final[dict[str, Budget]] = {
     keys.POSE: Budget(1000, 256 * _KIB),
     keys.POSES: Budget(1000, 8 * _MIB),
     keys.STATUS: Budget(20, 256 * _KIB),
+    keys.VIEW: Budget(50, 512 * _KIB),
     keys.PATTERN: Budget(50, 4 * _MIB),
     keys.OPERATOR_PATTERN: Budget(50, 4 * _MIB),
     keys.BRAIN: Budget(10, 130 * _MIB),

@@ -10,6 +10,7 @@ topic                       schema                           what
 ``K/robot/<id>/pose``       ``patternrl.RobotPose``          world -> robot
 ``K/robot/<id>/cmd``        ``patternrl.RobotCommand``       robot -> world
 ``K/robot/<id>/status``     ``patternrl.RobotStatus``        robot health
+``K/robot/<id>/view``       ``patternrl.RobotView``          the team it perceived
 ``K/pattern``               ``patternrl.Pattern``            target pattern (the world's)
 ``K/operator/pattern``      ``patternrl.Pattern``            an operator's target
 ``K/brain``                 ``patternrl.BrainSwap``          brain swaps
@@ -37,6 +38,12 @@ recorded step with a transform per robot; ``/robot/<id>/pose`` the same position
 what is not one of the project's messages: a sample on a foreign key (whole), a
 payload that did not decode (``reason``, its first bytes) and a payload refused
 for its size (``reason``, no bytes; see :data:`MAX_PAYLOAD_BYTES`).
+
+``K/robot/<id>/view`` is there only for robots that ran under imperfect sensing
+(``robot --conditions``, every ``--view-every`` steps): where the robot believed each
+member of its team to be when it decided a step, beside the world's poses of that same
+step, so ``patternrl replay`` measures the estimation error. Older logs lack it and read
+as before.
 
 Time: ``publish_time`` is always the wall clock (ns since the Unix epoch). In
 lockstep the world's log has ``log_time`` = simulated time, start + step x dt (the
@@ -68,7 +75,10 @@ recorder's writer could not keep up with and dropped, counted, at the end).
 entity per robot (entity id = the robot id, a cylinder of diameter 2R at its
 position), an entity ``targets`` (a small sphere at each target slot, placed on
 the team's centroid) and ``arena`` (the walls as a line loop). A robot that left
-is deleted by id. The log opens in Foxglove's 3D panel without custom panels.
+is deleted by id. Robots under imperfect sensing add ``perceived/<id>``: small
+translucent spheres of the robot's colour where it believed its peers to be, drawn
+when a new view of it came and kept until the next. The log opens in Foxglove's 3D
+panel without custom panels.
 
 Durability: chunks are small and the writer is flushed regularly
 (:class:`sim_bridge.log.recorder.Recorder`), so a writer killed with SIGKILL leaves a
@@ -122,6 +132,7 @@ PB_SCHEMAS: Final = {
     keys.PATTERN: pb.PATTERN,
     keys.OPERATOR_PATTERN: pb.PATTERN,
     keys.BRAIN: pb.BRAIN_SWAP,
+    keys.VIEW: pb.ROBOT_VIEW,
 }
 """Key kind -> protobuf schema of the channel of keys of that kind."""
 
@@ -132,6 +143,7 @@ WIRE_SCHEMAS: Final = {
     keys.PATTERN: "patternrl.Pattern",
     keys.OPERATOR_PATTERN: "patternrl.Pattern",
     keys.BRAIN: "patternrl.Brain",
+    keys.VIEW: "patternrl.View",
 }
 """Key kind -> schema name of the wire message on keys of that kind (old logs)."""
 

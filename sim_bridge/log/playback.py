@@ -1,7 +1,7 @@
 """Play a log back onto Zenoh: every recorded wire message, on its key, with its timing.
 
 What ``ros2 bag play`` does for a bag, for this project's MCAP logs. The channels
-of the project's keys (poses, commands, statuses, patterns, brains) hold every
+of the project's keys (poses, commands, statuses, views, patterns, brains) hold every
 field of the Zenoh messages (protobuf; :mod:`sim_bridge.log.schemas`), so
 play-back encodes each one back into its wire payload (old logs, ``patternrl-wire``,
 hold the payloads byte for byte, foreign keys included) and puts it on its key, in file
@@ -12,7 +12,7 @@ Zenoh traffic, and are not played, nor are Foxglove's views (``/tf``,
 
 * ``topics``: which channels to play: key expressions (``*`` one chunk, ``**``
   any, matched against the recorded key and the key it is played on) or kinds
-  (``pose``, ``cmd``, ``status``, ``pattern``, ``brain``: the key's last chunk).
+  (``pose``, ``cmd``, ``status``, ``view``, ``pattern``, ``brain``: the key's last chunk).
 * ``start_s``: skip the first seconds of the log (from its first message).
 * ``swarm``: republish under another swarm name (``patternrl/<old>/...`` ->
   ``patternrl/<swarm>/...``, :func:`runtime.wire.keys.with_swarm`), so a live swarm is
@@ -40,7 +40,8 @@ from sim_bridge.log import schemas as pb
 from sim_bridge.log.file import LogError, Recovery, iter_messages
 from sim_bridge.log.layout import WIRE_ENCODING, channel_kind
 
-KINDS = (keys.POSE, keys.CMD, keys.STATUS, keys.PATTERN, keys.OPERATOR_PATTERN, keys.BRAIN)
+KINDS = (keys.POSE, keys.CMD, keys.STATUS, keys.PATTERN, keys.OPERATOR_PATTERN, keys.BRAIN,
+         keys.VIEW)
 
 
 @dataclass

@@ -10,18 +10,22 @@ JSON is parsed for events and metrics only; every other message is just counted.
 Channels are told apart by :func:`sim_bridge.log.layout.channel_kind`, so a log in
 today's layout (protobuf) and an old one (``patternrl-wire``) read alike.
 
-What cannot be part of the run is skipped and said (:attr:`LogData.skipped`): a pose
-or command whose step lies outside the run (0 .. the last step the world noted,
+Views (what robots under imperfect sensing perceived, ``K/robot/<id>/view``) are collected
+too and decoded afterwards (:mod:`sim_bridge.log.views`); a log without them has none.
+
+What cannot be part of the run is skipped and said (:attr:`LogData.skipped`): a pose,
+command or view whose step lies outside the run (0 .. the last step the world noted,
 or :data:`MAX_LOG_STEP` for a log without the world's notes), a robot id above
 :data:`MAX_ROBOT_ID`, a command of a robot the world never placed (no pose of it
-on the log), an event or metrics row whose ``step`` is not an integer.
+on the log), an event or metrics row whose ``step`` is not an integer; a view whose robot
+id is above :data:`MAX_ROBOT_ID`.
 """
 
 from __future__ import annotations
 
 import json
 import struct
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Final
 
@@ -56,6 +60,7 @@ from sim_bridge.log.layout import (
     SCENE_TOPIC,
     channel_kind,
 )
+from sim_bridge.log.views import Views, decode_views, select
 
 MAX_LOG_STEP: Final = 10_000_000
 """The last step of a log without the world's notes (11 days at 10 Hz)."""
@@ -101,6 +106,8 @@ class LogData:
     """what was skipped as no part of the run -> how many (see the module)"""
     wire_layout: bool = False
     """an old log (Zenoh payloads as ``patternrl-wire`` bytes)"""
+    views: Views = field(default_factory=Views.empty)
+    """what robots under imperfect sensing perceived (none in a log without views)"""
 
     def events_of(self, kind: str) -> list[dict[str, Any]]:
         """Events of one kind, in order."""
@@ -118,8 +125,9 @@ def _world_from(events: list[dict[str, Any]]) -> WorldConfig:
     return DEFAULT_WORLD
 
 
-_OTHER, _POSE, _CMD, _PATTERN, _EVENT, _METRIC, _RAW = range(7)
-_WIRE_KINDS: Final = {keys.POSE: _POSE, keys.CMD: _CMD, keys.PATTERN: _PATTERN}
+_OTHER, _POSE, _CMD, _PATTERN, _EVENT, _METRIC, _RAW, _VIEW = range(8)
+_WIRE_KINDS: Final = {keys.POSE: _POSE, keys.CMD: _CMD, keys.PATTERN: _PATTERN,
+                      keys.VIEW: _VIEW}
 _JSON_TOPICS: Final = {EVENTS_TOPIC: _EVENT, METRICS_TOPIC: _METRIC}
 
 
@@ -179,6 +187,9 @@ def read_log(path: str | Path) -> LogData:
     cmd_idx: tuple[list[int], list[int]] = ([], [])
     cmd_rid: tuple[list[int], list[int]] = ([], [])
     json_msgs: list[tuple[int, bytes]] = []
+    view_raw: list[bytes] = []
+    view_wire: list[bool] = []
+    view_rid: list[int] = []
     patterns: list[PatternMark] = []
     malformed = 0
     wire_seen = False
@@ -217,6 +228,10 @@ def read_log(path: str | Path) -> LogData:
                     cmd_raw[w].append(buf[s + 22 : p])
                     cmd_idx[w].append(i)
                     cmd_rid[w].append(rid)
+                elif k == _VIEW:
+                    view_raw.append(buf[s + 22 : p])
+                    view_wire.append(wire)
+                    view_rid.append(rid)
                 elif k == _EVENT or k == _METRIC:
                     json_msgs.append((k, buf[s + 22 : p]))
                 elif k == _PATTERN:
@@ -267,13 +282,15 @@ def read_log(path: str | Path) -> LogData:
     prec, pidx = _valid_poses(prec, pidx, last, skipped)
     frames = frames_of(prec, pidx)
     cmds = _valid_commands(cmds, frames.ids, last, skipped)
+    views, bad_v = decode_views(view_raw, view_wire, view_rid)
+    views = _valid_views(views, last, skipped)
     topics = {state.channels[cid].topic: c for cid, c in counts.items() if c}
     return LogData(
         path=str(path), recovery=recovery, events=events, metrics=metrics,
         frames=frames, commands=cmds, patterns=patterns, topics=topics,
-        malformed=malformed + bad_p + bad_p2 + bad_c + bad_c2, first_log_ns=max(first_ns, 0),
-        last_log_ns=max(last_ns, 0), world=_world_from(events), skipped=skipped,
-        wire_layout=wire_seen,
+        malformed=malformed + bad_p + bad_p2 + bad_c + bad_c2 + bad_v,
+        first_log_ns=max(first_ns, 0), last_log_ns=max(last_ns, 0), world=_world_from(events),
+        skipped=skipped, wire_layout=wire_seen, views=views,
     )
 
 
@@ -308,3 +325,11 @@ def _valid_commands(c: Commands, placed: Any, last: int, skipped: dict[str, int]
     _count(skipped, "commands of robots the world never placed", int(bad_id.sum()))
     ok = ~(bad_step | bad_id)
     return c if ok.all() else c.select(ok)
+
+
+def _valid_views(v: Views, last: int, skipped: dict[str, int]) -> Views:
+    bad_step = (v.step < 0) | (v.step > last)
+    bad_id = ~bad_step & (v.robot_id > MAX_ROBOT_ID)
+    _count(skipped, f"views with a step outside 0..{last}", int(bad_step.sum()))
+    _count(skipped, f"views with a robot id above {MAX_ROBOT_ID}", int(bad_id.sum()))
+    return select(v, ~(bad_step | bad_id))

@@ -46,6 +46,7 @@ from runtime.wire.messages import (
     decode_pose,
     decode_poses,
     decode_status,
+    decode_view,
     encode_pose,
 )
 from sim_bridge.log import schemas as pb
@@ -397,6 +398,9 @@ class Recorder:
             return pb.pattern_pb(decode_pattern(payload)), None
         if kind == keys.BRAIN:
             return pb.brain_pb(decode_brain(payload)), None
+        if kind == keys.VIEW:
+            v = decode_view(payload)
+            return pb.view_pb(v), v.step
         if kind == keys.POSES:  # only a malformed one comes here (see _expand_poses)
             decode_poses(payload)
         return None, None

@@ -237,7 +237,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="play N times; without N until Ctrl-C (default: once)")
     g.add_argument("--topics", nargs="+", metavar="T",
                    help="only these: key expressions (patternrl/demo/robot/*/pose) or kinds "
-                        "(pose cmd status pattern brain)")
+                        "(pose cmd status view pattern brain)")
     g.add_argument("--start", type=float, default=0.0, metavar="SECONDS",
                    help="skip the log's first SECONDS")
     g.add_argument("--swarm", default=None,

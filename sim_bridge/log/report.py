@@ -25,6 +25,10 @@ min separation                smallest centre distance after any step
 final error                   formation error at the phase's last step
 ============================  ===============================================
 
+Estimation error (when the log holds views: robots under imperfect sensing): each peer's
+perceived position against the world's pose of that peer at the view's step, per robot and
+overall (mean, p95, max), :mod:`sim_bridge.log.views`.
+
 From the log's records, not the poses: deadline misses, brain swaps, robots
 joined and lost (:mod:`sim_bridge.log.phases`), the brains that decided (the
 ``brain_id`` of every recorded command) and the safety filter's interventions
@@ -58,6 +62,7 @@ from runtime.world_config import WorldConfig
 from sim_bridge.log.file import Recovery
 from sim_bridge.log.phases import PhaseLog, PhasePattern, phases_of
 from sim_bridge.log.reader import LogData, as_int, read_log
+from sim_bridge.log.views import Estimation, estimation_error
 
 _BATCH_ROWS: Final = 128
 """Steps measured in one batch: keeps the (rows, n, n, 2) temporaries of the geometry small
@@ -160,6 +165,8 @@ class RunReport:
     """Each phase's patterns (its first and its resizes), for pictures; not in the JSON."""
     timing: dict[str, float] = field(default_factory=dict)
     """Seconds spent on the phases: ``phases_s`` in all, ``lower_bounds_s`` of it (not in JSON)."""
+    estimation: Estimation | None = None
+    """The robots' estimation error, from the log's views; None without views."""
 
     def pattern_at(self, phase: int, step: int) -> Array | None:
         """The pattern in force in ``phase`` at ``step``."""
@@ -189,6 +196,7 @@ class RunReport:
             "wall_s": round(self.wall_s, 3), "robots": self.robots, "mode": self.mode,
             "outcome": self.outcome, "malformed": self.malformed, "topics": self.topics,
             "skipped": self.skipped, "world": asdict(self.world), "phases": phases,
+            "estimation": None if self.estimation is None else self.estimation.to_dict(),
         }
 
 
@@ -397,6 +405,7 @@ def analyse(data: LogData) -> RunReport:
         topics=data.topics, phases=reports,
         series=series, world=data.world, phase_patterns=[ph.patterns for ph in phases],
         timing={**timing, "phases_s": time.perf_counter() - t0},
+        estimation=estimation_error(data.views, fr),
     )
 
 

@@ -67,7 +67,7 @@ def format_report(r: RunReport) -> str:
         out.append(f"skipped {n} {what}")
     if not r.phases:
         out.append("no pattern phase in the log")
-        return "\n".join(out)
+        return "\n".join(out + _estimation(r))
     header = ["#", "pattern", "n", "formed", "steps", "lb", "x lb", "travel m", "lb m", "x lb",
               "coll", "min sep m", "final err m", "misses", "stale (ages)", "guard", "swaps",
               "joined", "lost", "brains"]
@@ -94,6 +94,7 @@ def format_report(r: RunReport) -> str:
             rows.append([str(rid), *[_f(v) for v in per], _f(sum(v for v in per if v))])
         out += ["", "travel per robot (m)",
                 *table(header, rows, set(range(len(header))))]
+    out += _estimation(r)
     notes = [f"phase {ph.index}: differs from the world's phase_end in {', '.join(ph.mismatches)}"
              for ph in r.phases if ph.mismatches]
     checked = [ph for ph in r.phases if ph.world is not None]
@@ -101,6 +102,21 @@ def format_report(r: RunReport) -> str:
         notes.append(f"recomputed figures agree with the world's phase_end ({len(checked)} "
                      f"phase{'s' if len(checked) > 1 else ''})")
     return "\n".join([*out, "", *notes]) if notes else "\n".join(out)
+
+
+def _estimation(r: RunReport) -> list[str]:
+    """The robots' estimation error (their views against the world's poses); none without."""
+    est = r.estimation
+    if est is None:
+        return []
+    rows = [[str(rid), str(s.views), str(s.peers), _f(s.mean_m, 3), _f(s.p95_m, 3),
+             _f(s.max_m, 3)] for rid, s in sorted(est.per_robot.items())]
+    o = est.overall
+    rows.append(["all", str(o.views), str(o.peers), _f(o.mean_m, 3), _f(o.p95_m, 3),
+                 _f(o.max_m, 3)])
+    return ["", "estimation error (m): each peer as the robot perceived it vs the world's "
+                "pose of the same step",
+            *table(["robot", "views", "peers", "mean", "p95", "max"], rows, {1, 2, 3, 4, 5})]
 
 
 def format_compare(a: RunReport, b: RunReport) -> str:

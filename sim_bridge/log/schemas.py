@@ -19,6 +19,9 @@ built from the field tables of :mod:`runtime.wire.fields` (names, types, field n
                   4 x repeated double, 5 y repeated double                       (metres)
     BrainSwap     1 request_id string, 2 manifest_json string, 3 onnx bytes,
                   4 target_robots repeated uint32
+    RobotView     1 robot_id uint32, 2 step uint64, 3 ids repeated uint32,
+                  4 x repeated double, 5 y repeated double, 6 age_steps repeated uint32
+                  (the team as robot robot_id perceived it for step; metres, steps)
     RawSample     1 key string, 2 size uint64, 3 reason string, 4 payload bytes
 
 Fixed-width fields make a pose or command the recorder writes one fixed layout
@@ -43,20 +46,24 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError
 
-from runtime.wire.fields import BRAIN, COMMAND, POSE, STATUS, Field, FieldTable
+from runtime.wire.fields import BRAIN, COMMAND, POSE, STATUS, VIEW, Field, FieldTable
 from runtime.wire.fields import PATTERN as PATTERN_FIELDS
 from runtime.wire.messages import (
     COMMAND_VERSION,
     BrainMsg,
     Command,
+    MessageError,
     PatternMsg,
     Pose,
     Status,
+    View,
+    check_view,
     encode_brain,
     encode_command,
     encode_pattern,
     encode_pose,
     encode_status,
+    encode_view,
 )
 
 PROTOBUF: Final = "protobuf"
@@ -71,7 +78,7 @@ RAW_SAMPLE_FIELDS: Final = FieldTable("raw sample", "RawSample", (
     Field("payload", "bytes", 4),
 ))
 """A Zenoh payload kept as it came (too large, or not a message): the log's own message."""
-TABLES: Final = (POSE, COMMAND, STATUS, PATTERN_FIELDS, BRAIN, RAW_SAMPLE_FIELDS)
+TABLES: Final = (POSE, COMMAND, STATUS, PATTERN_FIELDS, BRAIN, RAW_SAMPLE_FIELDS, VIEW)
 """The field table of each of our messages, in the order of ``patternrl/log.proto``."""
 
 
@@ -129,6 +136,7 @@ ROBOT_STATUS: Final = "patternrl.RobotStatus"
 PATTERN: Final = "patternrl.Pattern"
 BRAIN_SWAP: Final = "patternrl.BrainSwap"
 RAW_SAMPLE: Final = "patternrl.RawSample"
+ROBOT_VIEW: Final = "patternrl.RobotView"
 POSE_IN_FRAME: Final = "foxglove.PoseInFrame"
 FRAME_TRANSFORMS: Final = "foxglove.FrameTransforms"
 
@@ -243,6 +251,25 @@ def brain_pb(b: BrainMsg) -> bytes:
     return bytes(m.SerializeToString())
 
 
+def view_pb(v: View) -> bytes:
+    m = message_class(ROBOT_VIEW)(robot_id=v.robot_id, step=v.step, ids=v.ids.tolist(),
+                                  x=v.xy[:, 0].tolist(), y=v.xy[:, 1].tolist(),
+                                  age_steps=v.age_steps.tolist())
+    return bytes(m.SerializeToString())
+
+
+def view_of(m: Any) -> View:
+    """A parsed ``patternrl.RobotView`` as a :class:`~runtime.wire.messages.View`, checked as
+    the wire's decoder checks one (:class:`~runtime.wire.messages.MessageError` if not)."""
+    n = len(m.ids)
+    if not len(m.x) == len(m.y) == len(m.age_steps) == n:
+        raise MessageError(f"view: {n} ids, but {len(m.x)} x, {len(m.y)} y and "
+                           f"{len(m.age_steps)} ages")
+    xy = np.stack([np.asarray(m.x, float), np.asarray(m.y, float)], axis=1).reshape(n, 2)
+    return check_view(View(m.robot_id, m.step, np.asarray(m.ids, np.int64), xy,
+                           np.asarray(m.age_steps, np.int64)))
+
+
 def raw_sample_pb(key: str, size: int, reason: str, payload: bytes) -> bytes:
     m = message_class(RAW_SAMPLE)(key=key, size=size, reason=reason, payload=payload)
     return bytes(m.SerializeToString())
@@ -282,6 +309,8 @@ def to_wire(name: str, data: bytes) -> bytes:
     if name == BRAIN_SWAP:
         return encode_brain(BrainMsg(m.request_id, m.manifest_json, bytes(m.onnx),
                                      tuple(m.target_robots)))
+    if name == ROBOT_VIEW:
+        return encode_view(view_of(m))
     if name == RAW_SAMPLE:
         return bytes(m.payload)
     raise ValueError(f"{name} is not a Zenoh message")

@@ -370,7 +370,8 @@ class SimWorld:
         self.journal.step_measures(m)
         self.journal.record_step(ph.index, ph.label, self.version, ph.steps, ids,
                                  res.positions, ph.C, m, t_step,
-                                 1.0 / self.period_s if self.cfg.mode == "realtime" else None)
+                                 1.0 / self.period_s if self.cfg.mode == "realtime" else None,
+                                 self.link.views())
         self.stepping_wall_s += time.monotonic() - t_step
         self.stepping_cpu_s += time.thread_time() - cpu_step
         if self.on_progress is not None:

@@ -11,6 +11,7 @@ Zenoh's threads; what they share with the world's thread sits under one
 * liveliness of the robots goes to the :class:`~sim_bridge.world.membership.Roster`;
 * commands are kept for the step being collected (:meth:`WorldLink.exchange`);
 * each robot's brain id, from its commands, statuses and accepted swaps;
+* each robot's latest view (the team as it perceived it, under imperfect sensing);
 * every sample under the swarm is written to the log as it came (``recorder``).
 
 Poses go out as ONE :class:`~runtime.wire.messages.PoseBatch` per step on
@@ -70,9 +71,11 @@ from runtime.wire.messages import (
     MessageError,
     Pose,
     PoseBatch,
+    View,
     decode_command,
     decode_pattern,
     decode_status,
+    decode_view,
     encode_pose,
     encode_poses,
 )
@@ -138,6 +141,7 @@ class WorldLink:
         self._applied: dict[int, int] = {}  # robot -> step of the last command applied
         self._last_step = -1  # the newest step whose poses went out
         self._brain_of: dict[int, str] = {}
+        self._views: dict[int, View] = {}  # robot -> its latest view
         self._exchanges = 0  # exchanges begun
         self._spoke_at: dict[int, int] = {}  # robot -> exchange of its last command (or join)
         # --- the world's thread
@@ -243,6 +247,27 @@ class WorldLink:
             self.roster.heard(k.robot_id)
             with self.cond:
                 self._brain_of[st.robot_id] = st.brain_id
+        elif k.kind == keys.VIEW:
+            self._on_view(key, k.robot_id, payload)
+
+    def _on_view(self, key: str, rid: int, payload: bytes) -> None:
+        try:
+            view = decode_view(payload)
+        except MessageError as e:
+            self._malformed(key, str(e))
+            return
+        if view.robot_id != rid:
+            self._malformed(key, f"robot_id {view.robot_id} on key {key}")
+            return
+        with self.cond:
+            old = self._views.get(rid)
+            if old is None or view.step >= old.step:
+                self._views[rid] = view
+
+    def views(self) -> dict[int, View]:
+        """Each robot's latest view (robots under imperfect sensing only)."""
+        with self.cond:
+            return dict(self._views)
 
     def _over_budget(self, key: str, budget: Budget) -> None:
         self._event("over_budget", key=key, messages_per_s=budget.messages,
@@ -353,6 +378,7 @@ class WorldLink:
         self._prev_pos.pop(rid, None)
         with self.cond:
             self._newest.pop(rid, None)
+            self._views.pop(rid, None)
         self._applied.pop(rid, None)
 
     def _undeclare_poses(self) -> None:

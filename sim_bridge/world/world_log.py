@@ -2,7 +2,8 @@
 
 Events carry the world's step and simulated time (step x dt). Each step writes one
 ``/world/metrics`` row and one Foxglove ``SceneUpdate`` (robots, the pattern's
-targets placed on the team's centroid, robots removed since the last scene).
+targets placed on the team's centroid, robots removed since the last scene, and the
+peers as each robot under imperfect sensing perceived them, when a new view of it came).
 Without a recorder only the user's lines remain.
 """
 
@@ -10,11 +11,12 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from runtime.decision.formation import centred
 from runtime.types import Array
+from runtime.wire.messages import View
 from runtime.world_config import WorldConfig
 from sim_bridge.live.scene import scene_json
 from sim_bridge.log.recorder import Recorder
@@ -37,6 +39,8 @@ class WorldLog:
         self._clock = clock
         """The world's current step."""
         self._removed_since_scene: list[int] = []
+        self._drawn_view: dict[int, int] = {}  # robot -> step of its view in the scene
+        self._perceived_removed: list[int] = []
 
     def say(self, msg: str, detail: bool = False) -> None:
         self._say(msg, detail)
@@ -49,6 +53,8 @@ class WorldLog:
     def robot_removed(self, rid: int) -> None:
         """The next scene deletes this robot's entity."""
         self._removed_since_scene.append(rid)
+        if self._drawn_view.pop(rid, None) is not None:
+            self._perceived_removed.append(rid)
 
     def step_measures(self, m: StepMeasures) -> None:
         """The step's events: new collisions, new contacts, robots that missed it."""
@@ -66,9 +72,11 @@ class WorldLog:
 
     def record_step(self, phase: int, pattern: str, version: int, phase_step: int,
                     ids: list[int], pos: Array, C: Array, m: StepMeasures,
-                    t_step: float, rate_hz: float | None = None) -> None:
+                    t_step: float, rate_hz: float | None = None,
+                    views: Mapping[int, View] | None = None) -> None:
         """The step's metrics row and scene; ``pos`` (n, 2) in ``ids`` order, ``C`` (n, 2);
-        ``rate_hz`` the realtime world's rate at the step."""
+        ``rate_hz`` the realtime world's rate at the step; ``views`` each robot's latest view
+        (drawn in the scene when new)."""
         if self.rec is None:
             return
         step = self._clock()
@@ -91,7 +99,14 @@ class WorldLog:
         }, now_ns)
         targets = centred(C) + pos.mean(axis=0)
         robots = [(rid, float(x), float(y)) for rid, (x, y) in zip(ids, pos, strict=True)]
+        perceived = []
+        for rid, v in sorted((views or {}).items()):
+            if self._drawn_view.get(rid) != v.step:
+                self._drawn_view[rid] = v.step
+                perceived.append((rid, v.xy[v.ids != rid]))
         self.rec.scene(scene_json(now_ns, robots, targets, self._removed_since_scene,
-                                  self.arena_m, self.w), now_ns)
+                                  self.arena_m, self.w, perceived=perceived,
+                                  perceived_removed=self._perceived_removed), now_ns)
         self.rec.end_step()
         self._removed_since_scene = []
+        self._perceived_removed = []

@@ -1,7 +1,8 @@
 """End to end under real-world conditions (the ``realistic`` preset): robots that sense the
 world's poses with 5 cm noise, a step late and 10 % lost, and track their peers, in a world
 whose wheels have a 10 % gain spread and actuation noise: the team forms and nothing
-collides (ground truth, recomputed from the log's poses)."""
+collides (ground truth, recomputed from the log's poses); the log keeps what each robot
+perceived beside that truth, and replay measures the robots' estimation error."""
 
 from __future__ import annotations
 
@@ -12,9 +13,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
+from patternrl.cli import main as cli
 from runtime.decision.formation import assign_slots, slot_distances
+from runtime.wire import keys
 from runtime.world_config import DEFAULT_WORLD
+from sim_bridge.log.layout import SCENE_TOPIC
 from sim_bridge.log.reader import read_log
 
 pytestmark = pytest.mark.timeout(180)
@@ -49,3 +54,50 @@ def test_a_noisy_late_lossy_swarm_forms_without_collision(
     _, final = run.frames.at(end)
     far = slot_distances(final, pattern, assign_slots(final, pattern)).max()
     assert far <= DEFAULT_WORLD.formed_tol_m
+
+
+def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
+    procs: Any, tmp_path: Path, kit: Any, capsys: pytest.CaptureFixture[str]
+) -> None:
+    n, every = 4, 5
+    swarm, port, log = f"e2e-view-{os.getpid()}", kit.free_port(), tmp_path / "view.mcap"
+    world = procs.world(swarm, port, "--robots", str(n), "--patterns", "line", "--seed", "5",
+                        "--record", str(log), "--json", "--wait-robots-s", "60",
+                        "--conditions", COND)
+    robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2", "--conditions", COND,
+                          "--sensing-seed", "5", "--estimator", "--brain", "rule:frame-balanced",
+                          "--view-every", str(every))
+              for i in range(n)]
+    assert world.wait(timeout=150) == 0, procs.log("world")
+    for r in robots:
+        assert r.wait(timeout=30) == 0
+
+    run = read_log(log)
+    assert run.malformed == 0
+    views = run.views
+    assert sorted(set(views.robot_id.tolist())) == list(range(n))
+    for i in range(n):  # one view every `every` steps of each robot, no more
+        steps = np.sort(views.step[views.robot_id == i])
+        assert len(steps) >= 2 and run.topics[keys.view_key(swarm, i)] == len(steps)
+        assert (np.diff(steps) >= every).all()
+    assert views.peer.tolist() and set(views.peer.tolist()) <= set(range(n))
+
+    with open(log, "rb") as f:  # the scene draws the perceived peers as views come
+        scenes = [json.loads(msg.data) for _, _, msg in
+                  make_reader(f).iter_messages(topics=[SCENE_TOPIC])]
+    drawn = {e["id"] for sc in scenes for e in sc["entities"]}
+    assert {f"perceived/{i}" for i in range(n)} <= drawn
+
+    assert cli(["replay", str(log), "--json"]) == 0
+    est = json.loads(capsys.readouterr().out)["estimation"]
+    assert est is not None and est["views"] == len(views)
+    overall = est["overall"]
+    with capsys.disabled():
+        print(f"\nestimation error over {overall['views']} views, {overall['peers']} peers: mean "
+              f"{overall['mean_m']:.3f} m, p95 {overall['p95_m']:.3f} m, "
+              f"max {overall['max_m']:.3f} m")
+    assert 0.0 < overall["mean_m"] <= overall["p95_m"] <= overall["max_m"]
+    assert overall["mean_m"] < 0.2 and overall["p95_m"] < 0.3 and np.isfinite(overall["max_m"])
+    assert sorted(est["per_robot"]) == [str(i) for i in range(n)]
+    assert cli(["replay", str(log)]) == 0
+    assert "estimation error (m)" in capsys.readouterr().out

@@ -38,3 +38,22 @@ def test_non_finite_or_non_float_coordinates_are_what_json_makes_of_them() -> No
         scene_json(5, [(0, float("nan"), 1.0)], None)
     robots = [(3, 1, 2.5)]  # an int coordinate: json writes it as an int
     assert scene_json(7, robots, None) == _dumps(scene_update(7, robots, None))
+
+
+def test_perceived_peers_are_translucent_spheres_of_the_robot_and_go_with_it() -> None:
+    robots = [(0, 1.0, 2.0), (4, 3.0, 1.5)]
+    perceived = [(4, np.array([[1.02, 1.97], [5.0, 5.5]])), (0, np.zeros((0, 2)))]
+    update = scene_update(11, robots, None, (2,), 10.0, perceived=perceived,
+                          perceived_removed=(2, 6))
+    assert scene_json(11, robots, None, (2,), 10.0, perceived=perceived,
+                      perceived_removed=(2, 6)) == _dumps(update)
+    ents = {e["id"]: e for e in update["entities"]}
+    mine = ents["perceived/4"]["spheres"]
+    assert [(s["pose"]["position"]["x"], s["pose"]["position"]["y"]) for s in mine] == [
+        (1.02, 1.97), (5.0, 5.5)]
+    assert all(s["color"]["a"] < 1.0 for s in mine)
+    assert mine[0]["color"]["r"] == ents["4"]["cylinders"][0]["color"]["r"]
+    assert ents["perceived/0"]["spheres"] == []
+    assert [d["id"] for d in update["deletions"]] == ["2", "perceived/2", "perceived/6"]
+    plain = scene_update(11, robots, None, (2,), 10.0)  # without views: the scene as before
+    assert not any(e["id"].startswith("perceived/") for e in plain["entities"])

@@ -17,6 +17,7 @@ def test_round_trip_of_robot_keys(swarm: str, robot_id: int) -> None:
         (keys.pose_key, keys.POSE),
         (keys.cmd_key, keys.CMD),
         (keys.status_key, keys.STATUS),
+        (keys.view_key, keys.VIEW),
     ):
         key = build(swarm, robot_id)
         assert keys.parse_key(key) == Key(swarm, kind, robot_id)
@@ -46,6 +47,7 @@ def test_every_kind_is_parsed() -> None:
         keys.alive_key("s", 1),
         keys.poses_key("s"),
         keys.operator_pattern_key("s"),
+        keys.view_key("s", 1),
     ]
     parsed = [keys.parse_key(k) for k in built]
     assert [k.kind for k in parsed if k is not None] == list(keys.KINDS)
@@ -62,6 +64,7 @@ def test_every_kind_is_parsed() -> None:
         keys.alive_key("a", 5),
         keys.alive_key("a", keys.WORLD_ID),
         keys.operator_pattern_key("a"),
+        keys.view_key("a", 4),
     ],
 )
 def test_with_swarm_moves_every_key_to_the_other_swarm(key: str) -> None:
@@ -80,6 +83,7 @@ def test_with_swarm_moves_every_key_to_the_other_swarm(key: str) -> None:
         keys.all_poses("s"),
         keys.all_cmds("s"),
         keys.all_status("s"),
+        keys.all_views("s"),
         keys.all_alive("s"),
         keys.swarm_root("s"),
         "patternrl/*/pattern",
