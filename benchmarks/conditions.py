@@ -13,6 +13,9 @@ shipped general brain), pooled over the shapes and episodes:
 * ``coll/ep`` -- colliding pairs per episode, the hold window included;
 * ``steps`` -- steps to the first passage over the lower bound (mean over formed).
 
+``adversary:charge`` (:mod:`trainer.adversary`) drives every robot at full speed at its
+nearest peer: it never forms, and its column is the safety filter's alone (collisions).
+
 A brain named ``X+naive`` runs as robots did before they knew their sensing: the safety
 filter on the raw views and their frame differences, no widened margin, no damped landing
 (the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates.
@@ -60,7 +63,7 @@ CASES: dict[str, str] = {
 }
 SHAPES = ("circle", "cross", "heart", "triangle", "random")
 BRAINS = ("rule:assign", "rule:frame", "rule:frame-balanced", "rule:frame-balanced+est",
-          "exports/general.onnx+est")
+          "exports/general.onnx+est", ADVERSARY)
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,

@@ -38,6 +38,9 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["HEADING_MIN_MOVE_M", "Controller"]
 
+CENTROID_FRAME = 1.0
+"""The travel weight of the team's centroid frame, where a plan lands under noise
+(:class:`runtime.decision.settle.Settle`)."""
 HEADING_MIN_MOVE_M = 1e-3
 """A move this long (m) or longer shows a differential-drive base's heading (up to a half
 turn, which its drive law does not tell apart)."""
@@ -162,6 +165,8 @@ class Controller:
         if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
             pts = self._cc[slots]
             tx, ty, k = self._plan.solve_floats(pos, pts, spec.travel_weight, self.world)
+            if self._lander is not None and k <= self._lander.settle.centroid_steps:
+                tx, ty, k = self._plan.solve_floats(pos, pts, CENTROID_FRAME, self.world)
             qx, qy = pts[i].tolist()
             return qx + tx, qy + ty, k
         qx, qy = self._cc[int(slots[i])].tolist()
@@ -176,6 +181,8 @@ class Controller:
         if team is not None:  # a team rule plans from the poses
             c = np.asarray(self._pattern_obj, dtype=np.float64)
             out, k = team(P, c[None], slots[None])
+            if self._lander is not None and float(k[0]) <= self._lander.settle.centroid_steps:
+                out, k = team(P, c[None], slots[None], CENTROID_FRAME)  # landing under noise
             vx, vy = np.asarray(out)[0, i].tolist()
             return vx, vy, float(k[0])
         if not spec.needs_slots:  # the paper's observation

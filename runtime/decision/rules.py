@@ -207,9 +207,11 @@ class FrameRule:
     def act(self, obs: NDArray[Any]) -> Array:
         return straight_to_slot(np.asarray(obs), self._world)
 
-    def team_plan(self, pos: Array, pattern: Array, slots: IntArray) -> tuple[Array, Array]:
+    def team_plan(self, pos: Array, pattern: Array, slots: IntArray,
+                  travel_weight: float | None = None) -> tuple[Array, Array]:
         """(E, n, 2) positions, (E, n, 2) pattern, (E, n) slots -> every robot's velocity
         (E, n, 2) m/s and the plan's steps left K per team (E,), which the safety filter's
         landing horizon reads (:func:`runtime.decision.safety.landing`)."""
-        return plan_step(pos, pattern, slots, self.travel_weight, self._world)
+        w = self.travel_weight if travel_weight is None else travel_weight
+        return plan_step(pos, pattern, slots, w, self._world)
 

@@ -397,3 +397,99 @@ def test_the_source_run_as_python_filters_as_the_compiled_module(
             np.testing.assert_array_equal(chs[0], chs[1])
     assert {"overlap", "ring-overlap"} <= lp3_in, lp3_in  # the infeasible LP ...
     assert tau < 0.5 or "ring" in lp3_in, lp3_in  # ... also without a collision
+
+
+# ------------------------------------------------------------------ the guard
+
+G = 0.3  # the guard's distance in these cases (m); the hard radius is R = 0.24
+
+
+def guarded(nb: Any, nb_vel: Any, pref: Any, ref: Any = None) -> tuple[float, float]:
+    """Robot 0 at the origin, one neighbour at ``nb``: its velocity behind ORCA and the guard."""
+    f = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX, R, G)
+    pos = np.array([[[0.0, 0.0], nb]])
+    vel = np.array([[[0.0, 0.0], nb_vel]])
+    r = None if ref is None else np.ascontiguousarray(ref, dtype=np.float64)[None]
+    vx, vy, _, _ = f.robot(0, 0, pos, vel, *pref, 0.75, r)
+    return vx, vy
+
+
+def test_the_guard_caps_the_approach_to_half_the_room_whatever_the_neighbour_does() -> None:
+    """A neighbour 0.4 m ahead, racing away at full speed: ORCA lets the robot follow faster
+    than the guard, which allows half the room above G per step, (0.4 - G) / 2 / dt."""
+    f = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX, R)  # no guard: ORCA alone
+    vx, _, _, _ = f.robot(0, 0, np.array([[[0.0, 0.0], [0.4, 0.0]]]),
+                          np.array([[[0.0, 0.0], [1.0, 0.0]]]), 1.0, 0.0, 0.75)
+    assert vx > (0.4 - G) / 2 / DT + 0.05
+    vx, vy = guarded([0.4, 0.0], [1.0, 0.0], (1.0, 0.0))
+    assert vx == pytest.approx((0.4 - G) / 2 / DT) and vy == pytest.approx(0.0, abs=1e-12)
+    vx, vy = guarded([0.4, 0.0], [1.0, 0.0], (-1.0, 0.0))  # away from it: untouched
+    assert (vx, vy) == pytest.approx((-1.0, 0.0))
+
+
+@pytest.mark.parametrize("pref", [(1.0, 0.0), (0.0, 1.0), (0.7, -0.7)])
+def test_a_pair_inside_the_guard_keeps_its_distance(pref: tuple[float, float]) -> None:
+    """0.28 m apart, inside G: no approach along the seen direction nor along either edge
+    of the cone the neighbour may lie in (a noisy view's error)."""
+    vx, vy = guarded([0.28, 0.0], [0.0, 0.0], pref)
+    sn = (G - R) / 0.28
+    cs = math.sqrt(1 - sn * sn)
+    for wx, wy in ((1.0, 0.0), (cs, sn), (cs, -sn)):
+        assert vx * wx + vy * wy <= 1e-12
+
+
+def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
+    """The neighbour was last seen 0.7 m away, when the robot stood 0.15 m further back: of
+    half the room then, (0.7 - G) / 2 = 0.2 m, it has used 0.15, so 0.05 m are left this
+    step, whatever the neighbour now seems to do."""
+    ref = [[0.0, 0.0, 0.0, 0.0, 0.0], [0.55, 0.0, -0.15, 0.0, 0.0]]
+    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
+    assert vx == pytest.approx(0.05 / DT)
+    ref[1][4] = 1.0  # an update lost: also bounded from where it is now (0.9 m: no tighter)
+    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
+    assert vx == pytest.approx(0.05 / DT)
+    vx, _ = guarded([0.33, 0.0], [1.0, 0.0], (1.0, 0.0), ref)  # now 0.33 m: 0.015 m left
+    assert vx == pytest.approx((0.33 - G) / 2 / DT)
+
+
+def test_the_guard_scale_bounds_what_the_wheels_will_drive() -> None:
+    """A differential-drive base drives its command along its heading: the scale keeps the
+    drive within the guard, and with the heading unknown, any drive the command allows."""
+    f = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX, R, G)
+    pos = np.array([[[0.0, 0.0], [0.35, 0.0]]])
+    vel = np.zeros((1, 2, 2))
+    vx, vy, _, _ = f.robot(0, 0, pos, vel, 0.0, 1.0, 0.75)  # sideways: allowed
+    cap = (0.35 - G) / 2 / DT
+    assert f.guard_scale(0, 0, pos, vx, vy) == 1.0
+    assert f.guard_scale(0, 0, pos, 1.0, 0.0) == pytest.approx(cap)  # drives straight at it
+    sn = (G - R) / 0.35
+    want = cap / (0.5 * (math.hypot(vx, vy) + abs(vx) * math.sqrt(1 - sn * sn)
+                         + abs(vy) * sn))
+    assert f.guard_scale(0, 0, pos, vx, vy, True) == pytest.approx(min(1.0, want))
+    orca_only = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX)
+    assert orca_only.guard_scale(0, 0, pos, 1.0, 0.0) == 1.0
+    with pytest.raises(ValueError):
+        f.robot(0, 0, pos, vel, 1.0, 0.0, 0.75, np.zeros((1, 2, 4)))
+
+
+def test_the_guard_in_the_source_run_as_python_is_the_compiled_module() -> None:
+    py = python_core().orca
+    rng = np.random.default_rng(17)
+    args = (10, 2.0, R + 0.02, DT, 0.2, V_MAX, R, G)
+    fast, slow = OrcaFilter(*args), py.OrcaFilter(*args)
+    for _, pos, vel, pref in crowds(rng):
+        n = len(pos)
+        P, V = np.ascontiguousarray(pos[None], dtype=np.float64), vel[None].copy()
+        ref = np.zeros((1, n, 5))
+        ref[0, :, 0:2] = pos + rng.normal(0.0, 0.05, (n, 2))
+        ref[0, :, 2:4] = pos[rng.integers(0, n, n)]  # some other pose of "its own"
+        ref[0, :, 4] = rng.integers(0, 2, n)
+        for r in (None, ref):
+            for i in range(n):
+                got = fast.robot(0, i, P, V, *pref[i], 0.75, r)
+                want = slow.robot(0, i, P, V, *pref[i], 0.75, r)
+                np.testing.assert_allclose(got[:2], want[:2], rtol=0, atol=1e-12)
+                for heading_known in (True, False):
+                    a = fast.guard_scale(0, i, P, *pref[i], not heading_known, r)
+                    b = slow.guard_scale(0, i, P, *pref[i], not heading_known, r)
+                    assert a == pytest.approx(b, abs=1e-12) and 0.0 <= a <= 1.0

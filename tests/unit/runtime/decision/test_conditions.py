@@ -120,6 +120,28 @@ def test_tracker_beats_the_raw_view_on_noise_and_latency() -> None:
     assert np.allclose(vel[0, 1], v, atol=0.15)
 
 
+def test_tracker_averages_a_still_peer_longer_and_follows_one_that_moves() -> None:
+    """A peer that keeps still is averaged at the still gain (half the error or less than
+    at the moving gain, 10 cm noise); one that drives off at full speed is followed within
+    a few steps as before."""
+    rng = np.random.default_rng(5)
+    errs: dict[bool, list[float]] = {True: [], False: []}
+    for still in (True, False):
+        tr = PeerTracker(np.array([0]), noise_m=0.1, still=still)
+        peer = np.array([1.0, 0.0])
+        for t in range(200):
+            z = np.array([[[0.0, 0.0], peer + rng.normal(0, 0.1, 2)]])
+            x, _, _ = tr.update(z, np.zeros((1, 2), dtype=np.int64))
+            if t >= 50:
+                errs[still].append(float(np.hypot(*(x[0, 1] - peer))))
+    assert np.mean(errs[True]) < 0.7 * np.mean(errs[False])
+    tr = PeerTracker(np.array([0]), noise_m=0.01)
+    for t in range(40):
+        peer = np.array([1.0 + max(t - 20, 0) * 0.1, 0.0])  # still, then off at 1 m/s
+        x, v, _ = tr.update(np.array([[[0.0, 0.0], peer]]), np.zeros((1, 2), dtype=np.int64))
+    assert np.hypot(*(x[0, 1] - peer)) < 0.05 and v[0, 1, 0] == pytest.approx(1.0, abs=0.1)
+
+
 def test_tracker_is_the_view_when_the_view_is_exact() -> None:
     tr = PeerTracker(np.arange(3))
     rng = np.random.default_rng(1)
