@@ -58,6 +58,7 @@ from runtime.decision.pipeline import decide_batch
 from runtime.decision.safety import OrcaParams
 from runtime.errors import InputError
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from trainer.adversary import ADVERSARY, ChargeBrain
 from trainer.world.training_world import BatchWorld, check_pattern
 
 HOLD_STEPS = 20
@@ -337,7 +338,10 @@ MIN_EVAL_ROBOTS = 2
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--brain", required=True, help="an ONNX brain (.onnx) or rule:assign")
+    p.add_argument("--brain", required=True,
+                   help="an ONNX brain (.onnx), a rule (rule:assign, rule:frame-balanced, ...) "
+                   f"or {ADVERSARY} (every robot at full speed at its nearest peer: a test of "
+                   "the safety filter alone)")
     p.add_argument("--pattern", help="built-in name or file (default: the brain's own pattern)")
     p.add_argument("--robots", type=int, help="team size (default: the brain's, else 10)")
     p.add_argument("--episodes", type=int, default=100, help="episodes (default 100)")
@@ -389,7 +393,7 @@ def run(args: argparse.Namespace) -> int:
               f"{MIN_EVAL_ROBOTS} robots), got {args.robots}", file=sys.stderr)
         return 2
     try:
-        brain = load_brain(args.brain)
+        brain = ChargeBrain() if args.brain == ADVERSARY else load_brain(args.brain)
     except BrainError as e:
         print(f"patternrl eval: {e}", file=sys.stderr)
         return 2

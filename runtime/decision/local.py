@@ -7,7 +7,8 @@ team, what its robot process runs: its :class:`runtime.decision.sensing.Sensor` 
 optionally its :class:`runtime.decision.estimator.PeerTracker`, and its own
 :class:`runtime.decision.controller.Controller` (its own assignment, hysteresis and plan),
 with the safety filter's margin widened by the uncertainty it knows it has
-(:func:`runtime.decision.safety.uncertainty_params`, the filter on the tracker's estimates).
+(:func:`runtime.decision.safety.uncertainty_params`, the filter on the tracker's estimates,
+its guard on the raw views paired with the robot's own pose of their age, :class:`Seen`).
 ``patternrl eval --conditions`` and
 ``benchmarks/conditions.py`` use it; ground truth is the world's.
 """
