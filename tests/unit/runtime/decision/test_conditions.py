@@ -235,6 +235,19 @@ def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None
     assert (vx, vy) == pytest.approx((0.2 * s.gain, 0.1 * s.gain))
 
 
+@pytest.mark.parametrize("spec", ["noise_m=0.1", "realistic"])
+def test_a_team_holds_at_10_cm_of_noise_and_in_the_realistic_preset(spec: str) -> None:
+    """Where the team's frame jittered by more than the tolerance (held 0 %): the still peers'
+    longer average and the centroid landing frame make it hold (ground truth, no
+    collision)."""
+    from runtime.brain.brain import load_brain
+    from trainer.evaluate import evaluate_brain
+
+    r = evaluate_brain(load_brain("rule:frame-balanced"), "circle", 7, 4, seed=78,
+                       conditions=parse_conditions(spec), estimator=True, progress=False)
+    assert r.collisions == 0 and r.formed_rate == 1.0 and r.held_rate >= 0.5
+
+
 def test_a_team_on_noisy_views_holds_with_the_tracker_and_the_landing() -> None:
     """5 cm of noise: each robot on its own view, tracker on, forms and holds (ground truth)."""
     from runtime.brain.brain import load_brain
