@@ -49,6 +49,17 @@ class WorldConfig:
 
 DEFAULT_WORLD = WorldConfig()
 
+HOLD_SHARE = 0.9
+"""A formation holds when it is formed on this share of the steps watched after it first
+formed, or more: ``patternrl eval --hold-steps`` and the world's ``--hold-steps`` judge alike."""
+
+
+def holds(formed: bool, held_steps: int, hold_steps: int) -> bool:
+    """A formation holds when it formed and was still formed after at least
+    :data:`HOLD_SHARE` of the ``hold_steps`` watched after its first passage (with none
+    watched, when it formed)."""
+    return formed and held_steps >= HOLD_SHARE * hold_steps
+
 MAX_PATTERN_COORD_M = 1e4
 """A pattern point farther than this from the origin (metres, either axis) is refused:
 the arena is tens of metres wide, and coordinates near the float range overflow

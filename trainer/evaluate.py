@@ -57,14 +57,13 @@ from runtime.decision.patterns import PatternError, pattern_label
 from runtime.decision.pipeline import decide_batch
 from runtime.decision.safety import OrcaParams
 from runtime.errors import InputError
-from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.adversary import ADVERSARY, ChargeBrain
 from trainer.world.training_world import BatchWorld, check_pattern
 
 HOLD_STEPS = 20
-"""After a team first forms, it is watched this many steps more."""
-HOLD_SHARE = 0.9
-"""A formation holds when it is formed at this share of the watched steps or more."""
+"""After a team first forms, it is watched this many steps more (a formation holds when
+formed on :data:`~runtime.world_config.HOLD_SHARE` of them, the world's rule too)."""
 
 DEFAULT_EVAL_SEED = 1_000_000
 """Training uses ``--seed`` (default 0) and selects checkpoints on ``seed + 1_000_003``."""
@@ -381,7 +380,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "compensation) and decides on the estimates")
     p.add_argument("--hold-steps", type=int, default=HOLD_STEPS,
                    help=f"steps watched after the team first forms; a success holds the "
-                   f"formation {HOLD_SHARE:.0%} of them (default {HOLD_STEPS}; 0: success "
+                   f"formation {HOLD_SHARE * 100:.0f}%% of them (default {HOLD_STEPS}; 0: success "
                    f"at the first passage)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

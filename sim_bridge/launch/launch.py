@@ -34,7 +34,9 @@ What it does:
 4. stops every robot by its PID (SIGTERM, then SIGKILL after a grace period),
    finishes the log, prints a table per pattern (steps to form and its lower
    bound, travel and its lower bound, collisions, min separation, deadline
-   misses) and draws the trajectory figure ``<log stem>.png`` beside the log.
+   misses; with ``--hold-steps N`` a ``held`` column, the steps of the N watched after
+   the first passage on which the team was still formed) and draws the trajectory figure
+   ``<log stem>.png`` beside the log.
 
 Ctrl-C (or SIGTERM) at any point: the world stops after its current step, every
 robot is stopped by PID, the log is finished and the table shows what was done.
@@ -43,8 +45,9 @@ However the launcher ends, even killed with SIGKILL, its lifeline
 seconds and removes the run's keys; the robots also run with
 ``--exit-after-silence-s``.
 
-Exit codes: 0 only when every pattern formed; 1 otherwise (or a robot failed to
-start); 2 on bad input; 130 when interrupted.
+Exit codes: 0 only when every pattern formed (and, with ``--hold-steps``, held: formed on
+90 % of the steps watched, :data:`runtime.world_config.HOLD_SHARE`); 1 otherwise (or a robot
+failed to start); 2 on bad input; 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -253,18 +256,23 @@ def _ratio(a: float, b: float) -> str:
 
 def format_table(phases: list[PhaseResult]) -> str:
     """The per-pattern table of the demo."""
-    head = ("pattern", "brain", "formed", "steps", "bound", "ratio", "travel m", "bound m",
-            "ratio", "collisions", "min sep m", "deadline misses")
+    hold = any(p.hold_steps for p in phases)  # the held column, with --hold-steps only
+    head = ("pattern", "brain", "formed", *(("held",) if hold else ()), "steps", "bound",
+            "ratio", "travel m", "bound m", "ratio", "collisions", "min sep m",
+            "deadline misses")
     rows = []
     for p in phases:
-        rows.append((p.pattern, p.brain, "yes" if p.formed else "NO", str(p.steps),
+        held = (f"{'yes' if p.held else 'NO'} {p.held_steps}/{p.hold_steps}" if p.formed
+                else "-")
+        rows.append((p.pattern, p.brain, "yes" if p.formed else "NO",
+                     *((held,) if hold else ()), str(p.steps),
                      str(p.lower_bound_steps), _ratio(p.steps, p.lower_bound_steps),
                      f"{p.travel_m:.2f}", f"{p.lower_bound_travel_m:.2f}",
                      _ratio(p.travel_m, p.lower_bound_travel_m), str(p.collisions),
                      f"{p.min_separation_m:.3f}", str(p.deadline_misses)))
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h)
               for i, h in enumerate(head)]
-    left = {0, 1, 2}
+    left = {0, 1, 2, 3} if hold else {0, 1, 2}
 
     def fmt(cells: tuple[str, ...]) -> str:
         return "  ".join(c.ljust(w) if i in left else c.rjust(w)
@@ -299,8 +307,10 @@ def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice], 
     if res.phases:
         print(format_table(res.phases), file=out)
     tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
-    verdict = {"done": "every pattern formed" if res.all_formed else "NOT every pattern formed",
-               "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
+    done = "every pattern formed" if res.all_formed else "NOT every pattern formed"
+    if res.all_formed and res.hold_steps:
+        done = "every pattern formed and held" if res.all_held else "NOT every pattern held"
+    verdict = {"done": done, "interrupted": "interrupted", "no robots": "no robots"}[res.outcome]
     if failed_start:
         verdict = "robots failed to start"
     print(f"{verdict}: {res.steps} steps in {res.wall_s:.1f} s; {tail}", file=out)
@@ -444,7 +454,7 @@ def run(args: argparse.Namespace) -> int:
             return 1
         if interrupted.is_set() or res.outcome == "interrupted":
             return 130
-        return 0 if res.all_formed else 1
+        return 0 if res.all_held else 1
 
     # every child joins the lifeline's process group: whatever way this process ends,
     # they end with it, and the keys made for the run go

@@ -60,8 +60,9 @@ per channel (:func:`channel_kind`) and reads both.
 ``run_start`` (configuration), ``pattern`` (a pattern published: version, name,
 points, reason ``phase`` or ``resize``), ``phase_start``, ``phase_end`` (the
 phase's results: formed, steps, lower bounds, travel, collisions, min separation,
-deadline misses, brain), ``brain_swap`` (per robot: accepted, reason), ``join``,
-``leave``, ``collision`` (robot pairs that overlapped during the step),
+deadline misses, brain; ``hold_steps``, ``held_steps`` and ``held`` for the steps watched
+after the first passage, absent from older logs), ``brain_swap`` (per robot: accepted,
+reason), ``join``, ``leave``, ``collision`` (robot pairs that overlapped during the step),
 ``contact`` (pairs the physics saw start touching, walls included),
 ``deadline_miss`` (robots that had not answered step ``for_step`` in time),
 ``stale_command`` (of those, the robots that moved on an older command, and each

@@ -11,9 +11,13 @@ figure                        computed from the recorded poses as
 ============================  ===============================================
 steps (formed)                first step ``s >= start`` at which every robot
                               is within the pattern's ``formed_tol_m`` of its
-                              slot under the centred optimal assignment;
-                              steps = s - start. Not formed: the phase's
-                              recorded length
+                              slot under the centred optimal assignment
+                              (the first passage); steps = s - start. Not
+                              formed: the phase's recorded length
+held steps                    when the world watched the formation after the
+                              first passage (``hold_steps`` > 0 on its
+                              ``phase_end``): the steps after it, up to the
+                              phase's end, at which the team was formed
 lower bounds                  :func:`runtime.decision.formation.lower_bounds` of the
                               poses at the phase's first step
 travel per robot              sum of ||p(s+1) - p(s)|| over the phase's steps
@@ -22,8 +26,12 @@ collisions                    robot pairs whose discs overlap at any time of
                               a step (swept test, straight-line motion), each
                               counted when it starts overlapping
 min separation                smallest centre distance after any step
-final error                   formation error at the phase's last step
+final error                   formation error at the phase's last step (the
+                              first passage, for a formed phase)
 ============================  ===============================================
+
+Travel and final error stop at the first passage; collisions, separation, commands and the
+step series run to the phase's end, the hold window included.
 
 Estimation error (when the log holds views: robots under imperfect sensing): each peer's
 perceived position against the world's pose of that peer at the view's step, per robot and
@@ -58,7 +66,7 @@ from runtime.decision.formation import (
     slot_distances,
 )
 from runtime.types import Array, BoolArray, IntArray
-from runtime.world_config import WorldConfig
+from runtime.world_config import WorldConfig, holds
 from sim_bridge.log.file import Recovery
 from sim_bridge.log.phases import PhaseLog, PhasePattern, phases_of
 from sim_bridge.log.reader import LogData, as_int, read_log
@@ -112,6 +120,13 @@ class PhaseReport:
     """The world's own ``phase_end`` figures, for comparison."""
     mismatches: list[str]
     """Figures where the recomputation and the world's ``phase_end`` disagree."""
+    hold_steps: int = 0
+    """Steps the world watched after the first passage (its ``phase_end``; 0: none, or a
+    log from before the world watched)."""
+    held_steps: int | None = None
+    """Of those, the steps at which the team was still formed; None without a hold window."""
+    held: bool | None = None
+    """Formed and held (:func:`runtime.world_config.holds`); None without a window."""
 
     @property
     def steps_ratio(self) -> float | None:
@@ -291,17 +306,25 @@ def _phase_report(data: LogData, ph: PhaseLog, end_step: int, complete: bool,
     pat_idx = ph.pattern_rows(steps)
     err, far, all_seps = _geometry(fr.xy[rows], fr.present[rows], pat_idx, ph)
     tol = np.asarray([p.formed_tol_m for p in ph.patterns])[pat_idx]
-    formed_rows = np.nonzero(far <= tol)[0]
+    is_formed = far <= tol
+    formed_rows = np.nonzero(is_formed)[0]
     formed = len(formed_rows) > 0
-    last = int(formed_rows[0]) if formed else len(rows) - 1
-    end = int(steps[last]) if len(rows) else ph.start_step
-    n_steps = end - ph.start_step
+    last = int(formed_rows[0]) if formed else len(rows) - 1  # the first passage
+    first_end = int(steps[last]) if len(rows) else ph.start_step
+    n_steps = first_end - ph.start_step
+    we = ph.world_end
+    hold = as_int(we.get("hold_steps")) if we is not None else 0
+    # the phase's last row: the first passage, or the end of the world's hold window
+    tail = len(rows) - 1 if formed and hold > 0 else last
+    end = int(steps[tail]) if len(rows) else ph.start_step
+    held_steps = int(is_formed[last + 1 : tail + 1].sum()) if hold > 0 and formed else (
+        0 if hold > 0 else None)
     span = rows[: last + 1]
     xy = fr.xy[span]
     travel = _travel(xy, fr.present[span], fr.ids) if len(xy) else {}
     # collisions, counted when a pair starts overlapping (as the world counts them)
-    collisions = _collisions(xy, fr.ids, all_seps[: last + 1], w)
-    seps = all_seps[1 : last + 1]
+    collisions = _collisions(fr.xy[rows[: tail + 1]], fr.ids, all_seps[: tail + 1], w)
+    seps = all_seps[1 : tail + 1]
     min_sep = float(seps.min()) if len(seps) and np.isfinite(seps.min()) else None
     # lower bounds from the poses at the phase's first step
     lb_steps: int | None = None
@@ -325,21 +348,21 @@ def _phase_report(data: LogData, ph: PhaseLog, end_step: int, complete: bool,
     brains = cm.brain_counts(sel)
     interventions = int(cm.safety_changed[sel].sum())
     got = cm.step[sel] * (1 << 24) + cm.robot_id[sel]
-    decided = rows[:last]  # the steps [start, end) whose poses the robots answered
+    decided = rows[:tail]  # the steps [start, end) whose poses the robots answered
     rr, cc = np.nonzero(fr.present[decided])
     want = fr.steps[decided][rr] * (1 << 24) + fr.ids[cc]
     missing = int((~np.isin(want, got)).sum())
     # the world's view, for comparison
-    we = ph.world_end
     mism = [] if we is None else _mismatches(we, [
         ("formed", formed, 0.0), ("steps", n_steps, 0.0),
         ("lower_bound_steps", lb_steps, 0.0), ("lower_bound_travel_m", lb_travel, 1e-5),
         ("travel_m", round(sum(travel.values()), 6), 1e-4), ("collisions", collisions, 0.0),
         ("min_separation_m", min_sep if min_sep is not None else -1.0, 1e-5),
-        ("deadline_misses", ph.deadline_misses, 0.0)])
-    series = StepSeries(ph.index, steps[: last + 1], steps[: last + 1].astype(np.float64) * w.dt_s,
-                        err[: last + 1],
-                        np.where(np.isfinite(all_seps), all_seps, np.nan)[: last + 1])
+        ("deadline_misses", ph.deadline_misses, 0.0),
+        *([("held_steps", held_steps, 0.0)] if hold > 0 else [])])
+    series = StepSeries(ph.index, steps[: tail + 1], steps[: tail + 1].astype(np.float64) * w.dt_s,
+                        err[: tail + 1],
+                        np.where(np.isfinite(all_seps), all_seps, np.nan)[: tail + 1])
     accepted = [s for s in ph.swaps if s.get("accepted") and (
         "old_brain_id" not in s or s.get("old_brain_id") != s.get("brain_id"))]
     unchanged = sum(1 for s in ph.swaps if s.get("accepted")) - len(accepted)
@@ -360,6 +383,8 @@ def _phase_report(data: LogData, ph: PhaseLog, end_step: int, complete: bool,
         swapped_to=sorted({str(s.get("brain", "")) for s in accepted}),
         joined=ph.joined, lost=ph.lost,
         world=dict(we) if we is not None else None, mismatches=mism,
+        hold_steps=hold, held_steps=held_steps,
+        held=None if held_steps is None else holds(formed, held_steps, hold),
     ), series
 
 

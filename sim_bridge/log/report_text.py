@@ -56,6 +56,14 @@ def _stale(ph: PhaseReport) -> str:
     return f"{ph.stale_commands} ({ages})"
 
 
+def _held(ph: PhaseReport) -> str:
+    """Steps still formed of those the world watched after the first passage: ``yes 19/20``,
+    ``NO 8/20``; ``-`` where there was no window (not formed, or none asked)."""
+    if ph.held_steps is None or not ph.hold_steps or not ph.formed:
+        return "-"
+    return f"{'yes' if ph.held else 'NO'} {ph.held_steps}/{ph.hold_steps}"
+
+
 def format_report(r: RunReport) -> str:
     """The terminal report: run facts, one row per phase, travel per robot."""
     out = [f"{r.path}: {r.mode}, {len(r.robots)} robots, {len(r.phases)} phases, "
@@ -68,14 +76,16 @@ def format_report(r: RunReport) -> str:
     if not r.phases:
         out.append("no pattern phase in the log")
         return "\n".join(out + _estimation(r))
-    header = ["#", "pattern", "n", "formed", "steps", "lb", "x lb", "travel m", "lb m", "x lb",
-              "coll", "min sep m", "final err m", "misses", "stale (ages)", "guard", "swaps",
-              "joined", "lost", "brains"]
+    hold = any(ph.held_steps is not None for ph in r.phases)  # a world that watched holds
+    header = ["#", "pattern", "n", "formed", *(["held"] if hold else []), "steps", "lb",
+              "x lb", "travel m", "lb m", "x lb", "coll", "min sep m", "final err m", "misses",
+              "stale (ages)", "guard", "swaps", "joined", "lost", "brains"]
     rows = []
     for ph in r.phases:
         formed = "yes" if ph.formed else ("no" if ph.complete else "cut")
         rows.append([
-            str(ph.index), ph.pattern, str(ph.n_robots), formed, str(ph.steps),
+            str(ph.index), ph.pattern, str(ph.n_robots), formed,
+            *([_held(ph)] if hold else []), str(ph.steps),
             "-" if ph.lower_bound_steps is None else str(ph.lower_bound_steps),
             _f(ph.steps_ratio), _f(ph.travel_m), _f(ph.lower_bound_travel_m), _f(ph.travel_ratio),
             str(ph.collisions), _f(ph.min_separation_m, 3), _f(ph.final_error_m, 4),
@@ -84,7 +94,8 @@ def format_report(r: RunReport) -> str:
             _ids(ph.joined), _ids(ph.lost),
             ",".join(_short_brain(b) for b in sorted(ph.brains)) or "-",
         ])
-    out += ["", *table(header, rows, {0, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15})]
+    right = {0, 2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15}
+    out += ["", *table(header, rows, {k + 1 if hold and k >= 4 else k for k in right})]
     ids = sorted({rid for ph in r.phases for rid in ph.travel_per_robot_m})
     if ids:
         header = ["robot", *[f"{ph.index}:{ph.pattern}" for ph in r.phases], "total m"]

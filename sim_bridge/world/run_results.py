@@ -44,6 +44,24 @@ class PhaseResult:
     """The oldest command applied (steps since its poses)."""
     guard_scaled: int = 0
     """Commands the world's guard slowed down or stopped (:mod:`sim_bridge.world.stale_guard`)."""
+    hold_steps: int = 0
+    """Steps the world went on after the first passage to watch the formation (``--hold-steps``;
+    0: the phase ended at the first passage). ``steps``, ``travel_m`` and ``final_error_m``
+    are the first passage's; collisions, contacts, separation and deadline figures, ``end_step``
+    and ``wall_s`` include these steps."""
+    held_steps: int = 0
+    """Of those steps, the ones after which the team was still formed."""
+    held: bool = False
+    """Formed, and still formed on :data:`~runtime.world_config.HOLD_SHARE` of the hold steps
+    or more (:func:`runtime.world_config.holds`); with ``hold_steps`` 0, the same as
+    ``formed``."""
+
+    def hold_text(self) -> str:
+        """``held 19/20``, ``NOT held (8/20)``; empty without a hold window or a first passage."""
+        if not self.hold_steps or not self.formed:
+            return ""
+        share = f"{self.held_steps}/{self.hold_steps}"
+        return f"held {share}" if self.held else f"NOT held ({share})"
 
 
 @dataclass
@@ -62,6 +80,17 @@ class RunResult:
     def all_formed(self) -> bool:
         return self.outcome == "done" and all(p.formed for p in self.phases)
 
+    @property
+    def all_held(self) -> bool:
+        """Every pattern formed and, where the world watched it after, held (the exit code's
+        success; with ``hold_steps`` 0 the same as :attr:`all_formed`)."""
+        return self.outcome == "done" and all(p.held for p in self.phases)
+
+    @property
+    def hold_steps(self) -> int:
+        """The hold window the phases ran with (0: none)."""
+        return max((p.hold_steps for p in self.phases), default=0)
+
 
 @dataclass
 class Progress:
@@ -79,6 +108,7 @@ class Progress:
 
 def result_dict(res: RunResult) -> dict[str, Any]:
     """The run as the ``--json`` line prints it."""
-    return {"outcome": res.outcome, "all_formed": res.all_formed, "steps": res.steps,
+    return {"outcome": res.outcome, "all_formed": res.all_formed, "all_held": res.all_held,
+            "steps": res.steps,
             "wall_s": res.wall_s, "record": res.record,
             "phases": [asdict(p) for p in res.phases]}

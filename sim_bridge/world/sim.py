@@ -22,8 +22,16 @@ ROS 2 (``--ros2``, :mod:`sim_bridge.ros2.fleet`): the robots move as a ROS 2 fle
 ``robot_<i>`` publishing ``odom`` and taking ``cmd_vel`` Twists, in realtime; the robots run
 ``patternrl robot --ros2 robot_<i>``.
 
-Exit codes: 0 when every pattern formed; 1 when one did not, or no robots came;
-2 on bad input; 130 when interrupted (the log is finished either way).
+Holding (``--hold-steps N``): the world watches each formed pattern N steps more before
+the next, the robots deciding as ever, and counts the steps after which the team is still
+formed; a pattern **held** when that is at least 90 % of N
+(:data:`runtime.world_config.HOLD_SHARE`, the rule of ``patternrl eval --hold-steps``). A
+team that only passes through a formation (noisy sensing, ``--conditions realistic``) forms
+but does not hold. The steps, travel and error per pattern stay the first passage's.
+
+Exit codes: 0 when every pattern formed (and, with ``--hold-steps``, held); 1 when one did
+not, or no robots came; 2 on bad input; 130 when interrupted (the log is finished either
+way).
 """
 
 from __future__ import annotations
@@ -43,7 +51,7 @@ from runtime.errors import InputError
 from runtime.net.session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
 from runtime.wire import keys
 from runtime.wire.fields import MAX_PATTERN_POINTS as MAX_TEAM
-from runtime.world_config import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE
 from sim_bridge.live.foxglove_live import DEFAULT_ADDRESS, FoxgloveLive, parse_address
 from sim_bridge.log.recorder import Recorder, check_output
 from sim_bridge.world.brain_choice import BrainChoice, brains_from_arg
@@ -57,6 +65,8 @@ callbacks, the recorder's writer) at least this often (Python's default is 5 ms)
 command's callback does not wait behind the writer."""
 MAX_AGE_STEPS_LIMIT = 50
 """The largest --max-command-age-steps accepted (5 s at 10 Hz)."""
+MAX_HOLD_STEPS = 1000
+"""The largest --hold-steps accepted (100 s at 10 Hz)."""
 
 # --------------------------------------------------------------------------- CLI
 
@@ -81,6 +91,12 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                    help="lockstep: a robot not answered by then holds still (default 250)")
     p.add_argument("--max-steps", type=int, default=DEFAULT_WORLD.step_limit,
                    help=f"step limit per pattern (default {DEFAULT_WORLD.step_limit})")
+    p.add_argument("--hold-steps", type=int, default=0, metavar="N",
+                   help="watch each formed pattern N steps more before the next; it held when "
+                        f"still formed on {HOLD_SHARE * 100:.0f}%% of them, else the run fails "
+                        "(exit 1) as if it had not formed; steps, travel and error stay the "
+                        f"first passage's (0..{MAX_HOLD_STEPS}, default 0: the next pattern at "
+                        "once)")
     p.add_argument("--rate-hz", type=float, default=1.0 / DEFAULT_WORLD.dt_s,
                    help="realtime step rate (default 1/dt = 10)")
     p.add_argument("--min-rate-hz", type=float, default=None,
@@ -142,6 +158,9 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
+    hold = getattr(args, "hold_steps", 0)
+    if not 0 <= hold <= MAX_HOLD_STEPS:
+        raise InputError(f"--hold-steps must be in 0..{MAX_HOLD_STEPS}, got {hold}")
     if getattr(args, "ros2", False):  # realtime: a ROS 2 base applies its newest Twist
         args.mode = "realtime"
         from runtime.ros2.environment import import_rclpy
@@ -157,7 +176,8 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
                          f"got {age}")
     return SimConfig(
         swarm=args.swarm, robots=args.robots, patterns=patterns, mode=args.mode, seed=args.seed,
-        step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, rate_hz=args.rate_hz,
+        step_deadline_ms=args.step_deadline_ms, max_steps=args.max_steps, hold_steps=hold,
+        rate_hz=args.rate_hz,
         brains=brains, wait_robots_s=getattr(args, "wait_robots_s", 30.0),
         conditions=conditions,
         ros2=bool(getattr(args, "ros2", False)),
@@ -230,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
     print_result(res, args.json)
     if res.outcome == "interrupted":
         return 130
-    return 0 if res.all_formed else 1
+    return 0 if res.all_held else 1
 
 
 def print_result(res: RunResult, as_json: bool) -> None:
@@ -239,8 +259,10 @@ def print_result(res: RunResult, as_json: bool) -> None:
         print(json.dumps(result_dict(res)))
         return
     for p in res.phases:
+        held = p.hold_text()
         print(f"{p.pattern:<10} {'formed' if p.formed else 'NOT formed':<10} "
-              f"{p.steps:>4} steps (lower bound {p.lower_bound_steps}), "
+              f"{p.steps:>4} steps" + (f", {held}" if held else "")
+              + f" (lower bound {p.lower_bound_steps}), "
               f"travel {p.travel_m:.2f} m (lower bound {p.lower_bound_travel_m:.2f}), "
               f"{p.collisions} collisions, min sep {p.min_separation_m:.3f} m, "
               f"{p.deadline_misses} deadline misses")

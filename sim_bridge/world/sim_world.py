@@ -35,9 +35,14 @@ The world owns the truth (where every robot is) and the clock. Each step it
 A pattern is **formed** when every robot is within ``world.formed_tol_m`` of its
 slot under the centred optimal assignment; the world then publishes the next
 pattern. A pattern not formed within ``max_steps`` is logged as a failure and the
-sequence goes on. The current :class:`~runtime.wire.messages.PatternMsg` is republished
-about once a second and answered to queries on the pattern key, for robots that
-join late.
+sequence goes on. With ``hold_steps`` N > 0 the world watches a formed pattern N
+steps more before the next one (the robots deciding as ever) and counts the steps
+after which the team is still formed: the phase **held** when that is at least
+:data:`~runtime.world_config.HOLD_SHARE` of N
+(:class:`~sim_bridge.world.run_results.PhaseResult` keeps the first passage's steps,
+travel and error, and counts collisions and deadline figures over the whole phase).
+The current :class:`~runtime.wire.messages.PatternMsg` is republished about once a
+second and answered to queries on the pattern key, for robots that join late.
 
 The world starts once ``robots`` robots are alive (or ``wait_robots_s`` has
 passed with at least two); robots that join or leave later are followed
@@ -66,7 +71,7 @@ from runtime.decision.kinematics import Wheels
 from runtime.decision.patterns import make_pattern, pattern_label
 from runtime.types import Array
 from runtime.wire.messages import PatternMsg, encode_pattern
-from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from runtime.world_config import DEFAULT_WORLD, WorldConfig, holds
 from sim_bridge.log.recorder import Recorder, SimTime
 from sim_bridge.world.brain_choice import BrainChoice
 from sim_bridge.world.brain_swaps import phase_brain_label, swap_brain_in
@@ -101,6 +106,8 @@ class SimConfig:
     step_deadline_ms: float = 250.0
     first_step_deadline_ms: float = 5000.0
     max_steps: int = DEFAULT_WORLD.step_limit
+    hold_steps: int = 0
+    """Steps a formed pattern is watched before the next (0: the next at the first passage)."""
     rate_hz: float = 1.0 / DEFAULT_WORLD.dt_s
     min_rate_hz: float | None = None
     """realtime: the slowest the world goes when robots cannot keep up (None: rate_hz / 4;
@@ -144,6 +151,12 @@ class _Phase:
     steps: int = 0
     tally: PhaseTally = field(default_factory=PhaseTally)
     brain_ids: set[str] = field(default_factory=set)
+    first: tuple[int, float, float] | None = None
+    """At the first passage: (steps, travel in metres, formation error in metres)."""
+    hold_done: int = 0
+    """Steps stepped since the first passage."""
+    held_steps: int = 0
+    """Of those, the ones after which the team was still formed."""
 
     @property
     def label(self) -> str:
@@ -284,15 +297,24 @@ class SimWorld:
     # ------------------------------------------------------------------ phases
 
     def _run_phase(self, index: int, name: str) -> PhaseResult:
-        """Play one pattern until formed, out of steps or stopped."""
+        """Play one pattern until formed (and watched ``hold_steps`` more), out of steps or
+        stopped."""
         ph = self._start_phase(index, name)
-        while (not ph.tally.formed(self.w) and ph.steps < self.cfg.max_steps
-               and not self.stop_event.is_set()):
+        while True:
+            if ph.first is None and ph.tally.formed(self.w):  # the first passage
+                ph.first = (ph.steps, ph.tally.travel_m, ph.tally.error_m)
+            done = (ph.hold_done >= self.cfg.hold_steps if ph.first is not None
+                    else ph.steps >= self.cfg.max_steps)
+            if done or self.stop_event.is_set():
+                break
             joined = self._follow_membership(ph)
             if joined is None:
                 break
             if not self._step(ph, first=self.step == 0 or joined > 0):
                 break
+            if ph.first is not None:
+                ph.hold_done += 1
+                ph.held_steps += int(ph.tally.formed(self.w))
         return self._end_phase(ph)
 
     def _start_phase(self, index: int, name: str) -> _Phase:
@@ -407,11 +429,14 @@ class SimWorld:
     def _end_phase(self, ph: _Phase) -> PhaseResult:
         t = ph.tally
         seen = sorted(b for b in ph.brain_ids if b)
-        formed = t.formed(self.w)
+        formed = ph.first is not None
+        steps, travel_m, error_m = ph.first if ph.first is not None else (
+            ph.steps, t.travel_m, t.error_m)
+        hold = self.cfg.hold_steps
         result = PhaseResult(
             index=ph.index, pattern=ph.label, n_robots=len(self.physics.ids),
-            formed=bool(formed), steps=ph.steps, step_limit=self.cfg.max_steps,
-            lower_bound_steps=int(ph.lower_bound_steps), travel_m=round(t.travel_m, 6),
+            formed=formed, steps=steps, step_limit=self.cfg.max_steps,
+            lower_bound_steps=int(ph.lower_bound_steps), travel_m=round(travel_m, 6),
             lower_bound_travel_m=round(ph.lower_bound_travel_m, 6), collisions=t.collisions,
             contacts=t.contacts,
             min_separation_m=(round(t.min_separation_m, 6) if math.isfinite(t.min_separation_m)
@@ -419,14 +444,18 @@ class SimWorld:
             deadline_misses=t.deadline_misses, late_commands=self.link.late - ph.late0,
             stale_commands=t.stale_commands, held_still=t.held_still,
             command_age_max=t.command_age_max, guard_scaled=t.guard_scaled,
-            final_error_m=round(t.error_m, 6), brain=phase_brain_label(ph.choice, seen),
+            final_error_m=round(error_m, 6), brain=phase_brain_label(ph.choice, seen),
             brain_ids=seen, joins=t.joins, leaves=t.leaves, start_step=ph.start_step,
             end_step=self.step, wall_s=round(time.monotonic() - ph.t_start, 3),
+            hold_steps=hold, held_steps=ph.held_steps,
+            held=holds(formed, ph.held_steps, hold),
         )
         self.journal.event("phase_end", **asdict(result))
         verdict = "formed" if formed else "NOT formed"
-        self.journal.say(f"{ph.label}: {verdict} in {ph.steps} steps "
-                         f"(lower bound {ph.lower_bound_steps}), error {t.error_m:.3f} m")
+        held = result.hold_text()
+        self.journal.say(f"{ph.label}: {verdict} in {steps} steps"
+                         + (f", {held}" if held else "")
+                         + f" (lower bound {ph.lower_bound_steps}), error {error_m:.3f} m")
         return result
 
     def _publish_pattern(self, name: str, reason: str) -> Array:
