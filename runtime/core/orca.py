@@ -313,15 +313,18 @@ class OrcaFilter:
         the robot's approach to it. ORCA's guarantee rests on both robots predicting each
         other's velocity alike, which noisy and late views break; the guard needs only
         distances. From the pair as this robot last saw it (``guard_ref`` (E, n, 5): the
-        peer's sensed position, this robot's own pose at that step, and a flag) at
+        peer's sensed position, this robot's own pose at that step, and the way the peer may
+        have come since, unseen) at
         distance ``D`` along ``u``, the robot keeps its own approach along ``u`` since then,
         this step included, within half the room, ``(D - guard_m) / 2``: two robots that
         both obey, from views of the same age, end the step at least ``guard_m`` apart along
         ``u``, whatever either did meanwhile, unseen (latency needs no margin). A pair
         already inside keeps its distance. The bound holds along ``u`` and along the two
         edges of the cone the peer may lie in, ``asin((guard_m - 2R') / D)``, for the
-        error of a noisy view. A peer whose last update was lost (flag 1; the two robots'
-        views then differ in age) is also bounded from where it is estimated now, ``pos``.
+        error of a noisy view. A peer whose last update was lost (the two robots' views then
+        differ in age) is also bounded from where the robot stands now, as if the peer had
+        come ``guard_ref[..., 4]`` (m, the way it may have come since it was seen; 0: seen
+        on time) straight at it.
         Without ``guard_ref`` the pair is taken as it is in ``pos``. The guard projects the
         velocity on each bound in turn (:data:`GUARD_PASSES` rounds), then scales it down
         until every bound holds (zero always does).
@@ -516,9 +519,16 @@ class OrcaFilter:
         for rr in range(2 * m if has_ref else m):
             c = rr % m
             j = self._ids[a, b, c]
-            if rr >= m and has_ref and ref[e, j, 4] == 0.0:
-                continue  # a peer seen on time: its view's bound is enough
-            if rr < m and has_ref:  # the pair as last seen, and where this robot stood then
+            unseen = 0.0
+            if rr >= m:  # a peer whose update was lost: from here, now, to where it was seen,
+                unseen = ref[e, j, 4]  # less the way it may have come meanwhile, unseen
+                if not unseen > 0.0:
+                    continue  # seen on time: its view's bound is enough
+                sx = pos[e, i, 0]
+                sy = pos[e, i, 1]
+                ux = ref[e, j, 0] - sx
+                uy = ref[e, j, 1] - sy
+            elif has_ref:  # the pair as last seen, and where this robot stood then
                 sx = ref[e, j, 2]
                 sy = ref[e, j, 3]
                 ux = ref[e, j, 0] - sx
@@ -529,18 +539,20 @@ class OrcaFilter:
                 ux = pos[e, j, 0] - sx
                 uy = pos[e, j, 1] - sy
             d = sqrt(ux * ux + uy * uy)
-            if not (d > 1e-12 and isfinite(d) and isfinite(sx) and isfinite(sy)):
+            if not (d > 1e-12 and isfinite(d) and isfinite(sx) and isfinite(sy)
+                    and isfinite(unseen)):
                 continue
             ux = ux / d
             uy = uy / d
             # half the room there was then, less what this robot has closed since
-            cap = (0.5 * (d - g) - ((pos[e, i, 0] - sx) * ux + (pos[e, i, 1] - sy) * uy)
-                   ) * inv_dt
+            cap = (0.5 * (d - unseen - g) - ((pos[e, i, 0] - sx) * ux
+                                             + (pos[e, i, 1] - sy) * uy)) * inv_dt
             if not cap > 0.0:
                 cap = 0.0
             # the peer may lie off the seen direction by the error the guard allows for
-            # (g - hard): the seen direction, then both edges of that cone
-            sn = (g - self.hard) / d
+            # (g - hard) and the way it may have come: the seen direction, then both edges
+            # of that cone
+            sn = (g - self.hard + unseen) / d
             if sn > 1.0:
                 sn = 1.0
             cs = sqrt(1.0 - sn * sn)

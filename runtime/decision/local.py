@@ -48,8 +48,9 @@ class Seen:
     vel: Array | None = None
     """(B, n, 2) m/s: the team's velocities (None: frame differences)."""
     guard_ref: Array | None = None
-    """(B, n, 5): each peer as last sensed and where the robot stood when it was (m), and 1
-    where the peer's last update was lost (older than the latency), for the filter's guard
+    """(B, n, 5) m: each peer as last sensed and where the robot stood when it was, and where
+    the peer's last update was lost (older than the latency) the way it may have come since
+    (its age at full speed; else 0), for the filter's guard
     (:meth:`runtime.core.orca.OrcaFilter.robot`; None: both as they are now)."""
 
     def row(self, b: int) -> Seen:
@@ -82,6 +83,7 @@ class Perception:
         self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
                                    world=world) if tracked else None
         self.observer = np.asarray(observer, dtype=np.int64)
+        self.reach_m = world.v_max_mps * world.dt_s
         self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
         self.last_age: IntArray | None = None
         """(B, n) the age in steps of each position of the last views sensed."""
@@ -107,7 +109,9 @@ class Perception:
             self._own = np.roll(self._own, 1, axis=0)
             self._own[0] = own
         ref = np.empty((*view.shape[:2], 5))
-        ref[..., 4] = age > self.conditions.latency_steps  # an update lost: bound it now too
+        # an update lost: also bounded from now, as if the peer had come all its age's way
+        ref[..., 4] = np.where(age > self.conditions.latency_steps,
+                               np.maximum(age, 0) * self.reach_m, 0.0)
         ref[..., 0:2] = view  # as sensed: noisier than the tracker, but never lagging
         a = np.clip(age, 0, GUARD_HISTORY_STEPS - 1)
         ref[..., 2:4] = self._own[a, np.arange(B)[:, None]]
