@@ -15,6 +15,7 @@ its guard on the raw views paired with the robot's own pose of their age, :class
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,11 @@ from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["LocalDecisions", "Perception", "Seen"]
 
+LOST_TAIL = 1e-3
+"""A run of lost updates this unlikely is not guarded against: the guard counts a lost peer's
+unseen way for at most the latency plus ``log(LOST_TAIL) / log(loss)`` steps (6 at 30 %
+loss). Without loss, a peer that is not updated is out of range or beyond the k nearest:
+far, and not counted."""
 GUARD_HISTORY_STEPS = 32
 """How far back (steps) a robot keeps its own poses, to pair each peer's last view with where
 the robot itself stood then (the safety filter's guard); a peer seen longer ago than this is
@@ -84,6 +90,9 @@ class Perception:
                                    world=world) if tracked else None
         self.observer = np.asarray(observer, dtype=np.int64)
         self.reach_m = world.v_max_mps * world.dt_s
+        c = conditions
+        self._lost_steps = 0 if c.loss <= 0 else c.latency_steps + math.ceil(
+            math.log(LOST_TAIL) / math.log(c.loss))
         self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
         self.last_age: IntArray | None = None
         """(B, n) the age in steps of each position of the last views sensed."""
@@ -110,8 +119,10 @@ class Perception:
             self._own[0] = own
         ref = np.empty((*view.shape[:2], 5))
         # an update lost: also bounded from now, as if the peer had come all its age's way
+        # (a peer out of range, or beyond the k nearest, is far: only loss hides a near one)
         ref[..., 4] = np.where(age > self.conditions.latency_steps,
-                               np.maximum(age, 0) * self.reach_m, 0.0)
+                               np.minimum(np.maximum(age, 0), self._lost_steps) * self.reach_m,
+                               0.0)
         ref[..., 0:2] = view  # as sensed: noisier than the tracker, but never lagging
         a = np.clip(age, 0, GUARD_HISTORY_STEPS - 1)
         ref[..., 2:4] = self._own[a, np.arange(B)[:, None]]
