@@ -217,8 +217,11 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     sensed, ``GUARD_SIGMAS`` of the raw noise (the guard reads the raw views, see
     :meth:`runtime.decision.local.Perception.perceive`). Latency is in it twice over: the
     guard pairs each view with the robot's own pose of its age, so a late or lost view
-    needs no margin of its own, and the bound's latency term is kept as slack."""
-    return uncertainty_bound(conditions, world, GUARD_SIGMAS * conditions.noise_m)
+    needs no margin of its own, and the bound's latency term is kept as slack. A
+    differential drive's sideways error is not in it: the guard bounds what the wheels will
+    drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`)."""
+    holonomic = replace(conditions, kinematics="holonomic")
+    return uncertainty_bound(holonomic, world, GUARD_SIGMAS * conditions.noise_m)
 
 
 MARGIN_SIGMAS = 2.0
