@@ -36,7 +36,11 @@ longer average cannot hide a moving peer from it. Measured on ``benchmarks/condi
 cases (n = 10, 4 episodes per shape, `rule:frame-balanced` + the tracker, with the landing
 frame of :mod:`runtime.decision.settle`): 10 cm noise held 35 % -> 70 %, the realistic
 preset 95 % -> 95 %, 5 cm 100 % -> 100 %; still gains 0.1, or a threshold of 0.25 m/s,
-did worse on 5 cm (65-95 %).
+did worse on 5 cm (65-95 %). The price: a peer that starts from rest is followed late
+until its velocity estimate passes 0.1 m/s (the tracker's error over the realistic preset's
+episodes, n = 10: p95 0.13 m -> 0.20 m); keeping the still gains only while the residual
+stays under 2.5-3 sigmas of the noise brought the error back but held 10 cm noise 46-64 %
+instead of 73 % (100 episodes), and was left out.
 
 ``sigma_m`` (B, n) is the filter's own figure of its position error: the noise the
 steady-state filter leaves, ``noise sqrt(alpha / (2 - alpha))``, plus half a step at

@@ -97,7 +97,10 @@ def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
               f"{overall['mean_m']:.3f} m, p95 {overall['p95_m']:.3f} m, "
               f"max {overall['max_m']:.3f} m")
     assert 0.0 < overall["mean_m"] <= overall["p95_m"] <= overall["max_m"]
-    assert overall["mean_m"] < 0.2 and overall["p95_m"] < 0.3 and np.isfinite(overall["max_m"])
+    # a view paired with the wrong robots or steps is off by the team's spread (metres); the
+    # tracker itself lags a peer that starts from rest by up to a few tens of cm (the still
+    # peers' gain, runtime/decision/estimator.py): measured p95 0.15-0.28 m
+    assert overall["mean_m"] < 0.2 and overall["p95_m"] < 0.5 and np.isfinite(overall["max_m"])
     assert sorted(est["per_robot"]) == [str(i) for i in range(n)]
     assert cli(["replay", str(log)]) == 0
     assert "estimation error (m)" in capsys.readouterr().out
