@@ -85,9 +85,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", help="continue an interrupted run from its .ckpt.pt")
     p.add_argument("--envs", type=int, help=f"worlds side by side (default {d.n_envs})")
     p.add_argument("--conditions",
-                   help="the wheels to train on: a preset or spec of runtime.conditions with "
-                   "wheel fields only, e.g. 'gain_noise=0.1,act_noise_mps=0.02,kinematics=diff' "
-                   "(default perfect; recorded in the manifest)")
+                   help="the conditions to train under: a preset or spec of "
+                   "runtime.conditions, e.g. 'realistic' or 'gain_noise=0.1,kinematics=diff' "
+                   "(default perfect; recorded in the manifest). Under imperfect sensing each "
+                   "robot observes its own view through its peer tracker (general and plan "
+                   "observations only)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
         "--sign-key",

@@ -70,10 +70,10 @@ class TrainConfig:
     defaults): the worlds move each robot by the filtered command, as ``eval``, the world and
     the robots do, so a brain learns what the filter will make of its commands."""
     conditions: str = "perfect"
-    """The wheels the training world runs (runtime.conditions: a preset or spec); recorded in the
-    brain's manifest. Training applies the wheels' fields (gain_noise, act_noise_mps, kinematics,
-    turn_rate_rps); a spec with imperfect sensing is refused (the training world builds one
-    view per team)."""
+    """The conditions the training world runs (runtime.conditions: a preset or spec); recorded
+    in the brain's manifest. The wheels act in the world; under imperfect sensing each robot
+    observes its own view through its peer tracker, with the damped landing
+    (:mod:`trainer.world.sensed`; general and plan observations only)."""
     front_end: str = "auto"
     """The paper brain's fixed front end before the normaliser (trainer.ppo.front_end), read from
     the paper observation alone: ``transport`` (the team matched to its pattern by optimal
@@ -173,10 +173,10 @@ class TrainConfig:
             cond = parse_conditions(self.conditions)
         except InputError as e:
             raise ValueError(str(e).removeprefix("conditions: ")) from None
-        if not cond.sensing_perfect:
-            raise ValueError("training applies the wheels' fields only (gain_noise, "
-                             "act_noise_mps, kinematics, turn_rate_rps); evaluate sensing "
-                             "conditions with eval --conditions")
+        if not cond.sensing_perfect and self.obs == "paper":
+            raise ValueError("training under imperfect sensing builds each robot's general or "
+                             "plan observation from its own view (--obs general or plan), not "
+                             "the paper's")
 
     @property
     def world_conditions(self) -> Conditions:

@@ -55,7 +55,7 @@ import math
 
 import numpy as np
 
-from runtime.types import Array, IntArray
+from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["PeerTracker", "steady_sigma"]
@@ -93,10 +93,22 @@ class PeerTracker:
         self.latency_steps = int(latency_steps)
         self.noise_m = float(noise_m)
         self._sigma0 = steady_sigma(noise_m, alpha)
+        self._restart: BoolArray | None = None
 
         self.reset()
 
+    def restart(self, observers: IntArray) -> None:
+        """These observers start again (a new team or episode): their next update takes the
+        view as it is, with no velocity, as at the very start."""
+        rows = np.asarray(observers, dtype=np.int64)
+        restart = np.zeros(len(self.observer), dtype=bool)
+        if self._restart is not None:
+            restart |= self._restart
+        restart[rows] = True
+        self._restart = restart
+
     def reset(self) -> None:
+        self._restart = None
         self._x: Array | None = None
         self._v: Array | None = None
         self._age: IntArray | None = None
@@ -115,6 +127,17 @@ class PeerTracker:
         dt, vmax = self.world.dt_s, self.world.v_max_mps
         rows = np.arange(B)
         own = z[rows, self.observer]
+        if self._restart is not None and self._x is not None and self._x.shape == z.shape \
+                and self._v is not None and self._age is not None and self._own is not None:
+            r0 = self._restart  # these observers start again: their views taken as they are
+            self._x[r0] = z[r0]
+            self._v[r0] = 0.0
+            self._age[r0] = a[r0]
+            self._own[r0] = own[r0]
+            self._gap[r0] = 0
+            if self._z is not None:
+                self._z[r0] = z[r0]
+        self._restart = None
         if self._x is None or self._x.shape != z.shape or self._v is None \
                 or self._age is None or self._own is None:
             self._x = z.copy()

@@ -94,8 +94,18 @@ class Perception:
         self._lost_steps = 0 if c.loss <= 0 else c.latency_steps + math.ceil(
             math.log(LOST_TAIL) / math.log(c.loss))
         self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
+        self._own_restart: BoolArray = np.zeros(len(self.observer), dtype=bool)
         self.last_age: IntArray | None = None
         """(B, n) the age in steps of each position of the last views sensed."""
+
+    def restart(self, observers: IntArray) -> None:
+        """These observers start again (a new episode): the next step is their roll call,
+        every peer received, and the tracker takes it as it is."""
+        self.sensor.reset(observers)
+        if self.tracker is not None:
+            self.tracker.restart(observers)
+        if self._own is not None:
+            self._own_restart[np.asarray(observers, dtype=np.int64)] = True
 
     def perceive(self, truth: Array) -> Seen:
         """Each robot's team this step, from the team as it truly is now, ``truth`` (B, n, 2).
@@ -114,9 +124,13 @@ class Perception:
         own = view[np.arange(B), self.observer]
         if self._own is None or self._own.shape[1] != B:
             self._own = np.repeat(own[None], GUARD_HISTORY_STEPS, axis=0)
+            self._own_restart = np.zeros(B, dtype=bool)
         else:
             self._own = np.roll(self._own, 1, axis=0)
             self._own[0] = own
+            if self._own_restart.any():
+                self._own[:, self._own_restart] = own[self._own_restart]
+                self._own_restart[:] = False
         ref = np.empty((*view.shape[:2], 5))
         # an update lost: also bounded from now, as if the peer had come all its age's way
         # (a peer out of range, or beyond the k nearest, is far: only loss hides a near one)

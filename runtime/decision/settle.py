@@ -34,12 +34,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 from runtime.conditions import Conditions
 from runtime.decision.estimator import steady_sigma
+from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["Lander", "Settle", "settle_for"]
+__all__ = ["Lander", "Settle", "damp_landing", "landing_gain", "settle_for"]
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,19 @@ class Lander:
 
     def apply(self, vx: float, vy: float) -> tuple[float, float]:
         """The brain's velocity (m/s) as the landing lets it through."""
-        s = self.settle
-        if math.hypot(vx, vy) * self.dt_s < s.radius_m:
-            return vx * s.gain, vy * s.gain
-        return vx, vy
+        g = float(landing_gain(math.hypot(vx, vy), self.settle, self.dt_s))
+        return vx * g, vy * g
+
+
+def landing_gain(speed_mps: Any, settle: Settle, dt_s: float) -> Any:
+    """The landing's factor on a velocity of ``speed_mps`` (a number or an array): ``gain``
+    for a step shorter than ``radius_m``, else 1."""
+    return np.where(np.asarray(speed_mps) * dt_s < settle.radius_m, settle.gain, 1.0)
+
+
+def damp_landing(velocity: Array, settle: Settle, dt_s: float) -> Array:
+    """Velocities (..., 2) m/s as the landing lets them through (the training world's robots,
+    as :class:`Lander` a robot's)."""
+    v = np.asarray(velocity, dtype=np.float64)
+    out: Array = v * landing_gain(np.hypot(v[..., 0], v[..., 1]), settle, dt_s)[..., None]
+    return out

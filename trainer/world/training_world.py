@@ -68,11 +68,13 @@ from runtime.decision.kinematics import Wheels
 from runtime.decision.observation import ObservationSpec, general_observation, observe
 from runtime.decision.patterns import make_pattern, random_pattern
 from runtime.decision.rules import plan_targets
+from runtime.decision.settle import Settle, damp_landing, settle_for
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.ppo.rank import rank_goals
 from trainer.world.contacts import move
 from trainer.world.reward import DEFAULT_REWARD, PAPER_REWARD, RewardConfig, step_reward
+from trainer.world.sensed import SensedRows
 
 RANDOM_PATTERN = "random"
 
@@ -197,6 +199,12 @@ class BatchWorld:
             wheel_seeds = np.random.SeedSequence((seed, 1)).spawn(first_env + n_envs)
             self.wheels = Wheels(conditions, n_envs, n_robots, wheel_seeds[first_env:],
                                  world.dt_s)
+        self._sensed: SensedRows | None = None  # each robot's own view (imperfect sensing)
+        self._landing: Settle | None = None
+        if build_obs and not conditions.sensing_perfect:
+            self._sensed = SensedRows(conditions, obs_spec, n_envs, n_robots, seed, first_env,
+                                      world)
+            self._landing = settle_for(conditions, True, world)
         self.first_formed: IntArray = np.full(n_envs, -1, dtype=np.int64)
         self.held_steps: IntArray = np.zeros(n_envs, dtype=np.int64)
         self.travel_at_formed: Array = np.zeros(n_envs)
@@ -428,6 +436,12 @@ class BatchWorld:
         if not self.build_obs:
             return self._no_obs if ids is None else self._no_obs[: len(ids)]
         spec = self.obs_spec
+        if self._sensed is not None:  # each robot from its own view (trainer.world.sensed)
+            if ids is None:
+                rows, K = self._sensed.rows(self.frames[:, 0], self.pattern)
+                self.plan_steps_left = K.max(axis=1)  # the team's filter: the longest horizon
+                return rows
+            self._sensed.restart(ids)  # a start: the roll call, the team as it is
         if spec.needs_slots:  # the rows every robot builds (runtime.core.general_row)
             P = self.frames[sel, 0]
             K = None
@@ -537,7 +551,10 @@ class BatchWorld:
 
         Shapes inside: robot-major (2, N, E) and (N, E); returned (E, N, ...).
         """
-        # 1-3. actions -> velocities (the conditions' wheels), kinematics, contacts
+        # 1-3. actions -> velocities (the damped landing of a robot that senses through
+        # noise, the conditions' wheels), kinematics, contacts
+        if self._landing is not None:
+            actions = damp_landing(actions, self._landing, self.world.dt_s)
         if self.wheels is not None:
             actions = self.wheels.apply(actions)
         X1, hits, collisions, falls = move(actions, self._X, self._travel, self.world)

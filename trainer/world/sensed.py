@@ -1,0 +1,110 @@
+"""The training world under imperfect sensing: every robot's observation from its own view.
+
+In the perfect world one view per team serves every robot, and :class:`BatchWorld` builds
+the rows from it. Under noisy, late, gappy or local sensing no two robots see the same
+team, and a policy that is to cope must train on what a robot perceives. :class:`SensedRows`
+gives each robot of each env what its robot process gives its brain
+(:class:`runtime.decision.controller.Controller` behind
+:class:`runtime.decision.local.Perception` with the estimator on):
+
+1. its view under the conditions, through its own peer tracker (the positions as sensed,
+   smoothed, and the tracker's velocities);
+2. its own assignment of the pattern to that team (with hysteresis and warm potentials,
+   per robot);
+3. its slot: the centroid frame (general) or the synchronised plan's frame (plan), which
+   under noise lands in the centroid frame for the last ``Settle.centroid_steps`` steps;
+4. its row, built by the rows every robot builds (:func:`general_observation`).
+
+A robot whose episode starts (a reset) has its roll call: its first row is built from the
+team as it is, and its sensing and tracker start again. The world's rewards, contacts and
+"formed" stay ground truth. The paper's observation (fixed three frames of the whole team)
+is not offered here.
+
+Cost: E x n teams of n for the assignment and the rows, n times the perfect world's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.conditions import Conditions
+from runtime.core.assignment import assign_teams
+from runtime.decision.local import Perception
+from runtime.decision.observation import ObservationSpec, general_observation
+from runtime.decision.rules import plan_targets
+from runtime.decision.settle import settle_for
+from runtime.types import Array, F32Array, IntArray
+from runtime.world_config import DEFAULT_WORLD, WorldConfig
+
+__all__ = ["SensedRows"]
+
+CENTROID_FRAME = 1.0
+
+
+class SensedRows:
+    """Each robot's own observation row for ``n_envs`` teams of ``n_robots`` (see the module
+    docstring). ``seed``, ``first_env``: robot i of env e senses with the generator of
+    ``SeedSequence((seed, 2, first_env + e, i))``."""
+
+    def __init__(self, conditions: Conditions, spec: ObservationSpec, n_envs: int,
+                 n_robots: int, seed: int, first_env: int = 0,
+                 world: WorldConfig = DEFAULT_WORLD) -> None:
+        if not spec.needs_slots:
+            raise ValueError(f"training under imperfect sensing builds the general and plan "
+                             f"observations, not the {spec.name} one")
+        E, n = n_envs, n_robots
+        self.spec, self.world, self.n_envs, self.n_robots = spec, world, E, n
+        observer = np.tile(np.arange(n), E)
+        seeds = [np.random.SeedSequence((seed, 2, first_env + e, i))
+                 for e in range(E) for i in range(n)]
+        self.perception = Perception(conditions, observer, seeds, estimator=True, world=world)
+        settle = settle_for(conditions, True, world)
+        self.centroid_steps = settle.centroid_steps if settle is not None else 0.0
+        self._slots: IntArray = np.tile(np.arange(n, dtype=np.int64), (E * n, 1))
+        self._potentials: Array = np.zeros((E * n, n))
+        self._has_prev = np.zeros(E * n, dtype=bool)
+        self._eye = np.arange(n)
+
+    def restart(self, env_ids: IntArray) -> None:
+        """These envs start new episodes: their robots' roll call, and no hysteresis."""
+        n = self.n_robots
+        rows = (np.asarray(env_ids, dtype=np.int64)[:, None] * n + self._eye).reshape(-1)
+        self.perception.restart(rows)
+        self._has_prev[rows] = False
+        self._potentials[rows] = 0.0
+
+    def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:
+        """Every robot's row (E, n, dim) float32 from the teams as they truly are now,
+        ``truth`` (E, n, 2), and each env's centred ``pattern`` (E, n, 2); and each robot's
+        plan steps left K (E, n) (1 for the general observation)."""
+        E, n = self.n_envs, self.n_robots
+        seen = self.perception.perceive(np.repeat(np.asarray(truth, dtype=np.float64), n, 0))
+        P = np.ascontiguousarray(seen.plan)  # (E n, n, 2) each robot's team
+        V = np.zeros_like(P) if seen.vel is None else seen.vel
+        C = np.repeat(np.asarray(pattern, dtype=np.float64), n, 0)
+        Cc = np.ascontiguousarray(C - C.mean(axis=1, keepdims=True))
+        prev = self._slots
+        slots = prev.copy()
+        for warm in (True, False):  # with hysteresis, and the teams that start without
+            sel = self._has_prev == warm
+            if sel.all():
+                assign_teams(P, Cc, prev, warm, self._potentials, slots)
+            elif sel.any():
+                pot, out = self._potentials[sel], prev[sel].copy()
+                assign_teams(P[sel], Cc[sel], prev[sel], warm, pot, out)
+                self._potentials[sel], slots[sel] = pot, out
+        self._slots, self._has_prev[:] = slots, True
+        K: Array = np.ones(E * n)
+        if self.spec.name == "plan":
+            G, K = plan_targets(P, C, slots, self.spec.travel_weight, self.world)
+            land = K <= self.centroid_steps  # under noise, the last steps in the centroid frame
+            if land.any():
+                G[land], K[land] = plan_targets(P[land], C[land], slots[land], CENTROID_FRAME,
+                                                self.world)
+        else:
+            G = np.take_along_axis(Cc, slots[..., None], axis=1) + P.mean(axis=1, keepdims=True)
+        obs = general_observation(P, P - V * self.world.dt_s, G, self.spec.k_neighbours,
+                                  self.world, steps_left=K if self.spec.name == "plan" else None,
+                                  dtype=np.float32)
+        own = obs.reshape(E, n, n, -1)[:, self._eye, self._eye]  # robot i's row of its team
+        return np.ascontiguousarray(own), K.reshape(E, n)
