@@ -90,6 +90,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(default perfect; recorded in the manifest). Under imperfect sensing each "
                    "robot observes its own view through its peer tracker (general and plan "
                    "observations only)")
+    p.add_argument("--hold-steps", type=int,
+                   help="an episode that forms goes on this many steps more, each step still "
+                   "formed rewarded, and held-out success asks that it held (>= 90%% of them); "
+                   "default 0: episodes end at the first passage")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
         "--sign-key",
@@ -190,6 +194,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "--threads": ("threads", args.threads),
         "--lr-decay": ("lr_decay", True if args.lr_decay else None),
         "--conditions": ("conditions", args.conditions),
+        "--hold-steps": ("hold_steps", args.hold_steps),
     }
     for flag, (name, value) in options.items():
         if value is not None:

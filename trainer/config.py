@@ -74,6 +74,10 @@ class TrainConfig:
     in the brain's manifest. The wheels act in the world; under imperfect sensing each robot
     observes its own view through its peer tracker, with the damped landing
     (:mod:`trainer.world.sensed`; general and plan observations only)."""
+    hold_steps: int = 0
+    """An episode that forms goes on this many steps more (the hold window, ``eval
+    --hold-steps``): every step still formed earns the formed bonus again, and held-out success
+    asks that it held (>= 90 % of the window). 0: episodes end at the first passage."""
     front_end: str = "auto"
     """The paper brain's fixed front end before the normaliser (trainer.ppo.front_end), read from
     the paper observation alone: ``transport`` (the team matched to its pattern by optimal
@@ -166,6 +170,8 @@ class TrainConfig:
         if self.front_end not in ("auto", "none") and self.obs != "paper":
             raise ValueError(f"the {self.front_end} front end reads the paper observation "
                              "(--obs paper)")
+        if not 0 <= self.hold_steps <= 1000:
+            raise ValueError(f"hold_steps must be in 0..1000, got {self.hold_steps}")
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")

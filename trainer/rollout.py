@@ -87,7 +87,8 @@ def stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, sta
     world_seed = cfg.seed + RESUME_SEED_STRIDE * it  # it = 0 unless resumed
     bw = BatchWorld(b - a, cfg.n_robots, pattern, obs_spec_for(cfg), world=world,
                     reward=reward_for(cfg), seed=world_seed, first_env=a,
-                    rank_goals=cfg.front in ("rank", "slots"), conditions=cfg.world_conditions)
+                    rank_goals=cfg.front in ("rank", "slots"), conditions=cfg.world_conditions,
+                    hold_steps=cfg.hold_steps)
     obs = bw.observe()
     if cfg.desync:
         # every world starts at once; cut each first episode at a random step (a

@@ -52,7 +52,7 @@ import torch
 
 from runtime.decision.patterns import make_pattern, pattern_label
 from runtime.errors import InputError
-from runtime.world_config import DEFAULT_WORLD, WorldConfig
+from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.checkpoints import (
     TrainState,
     best_record,
@@ -172,8 +172,10 @@ def evaluate_policy(
         reward=reward_for(cfg),
         seed=seed,
         conditions=cfg.world_conditions,
+        hold_steps=cfg.hold_steps,
     )
     obs = bw.observe()
+    held = np.ones(episodes, bool)
     done = np.zeros(episodes, bool)
     formed = np.zeros(episodes, bool)
     steps = np.zeros(episodes)
@@ -190,8 +192,10 @@ def evaluate_policy(
             ids = ep.env_ids[new]
             formed[ids], steps[ids] = ep.formed[new], ep.steps[new]
             collisions[ids], error[ids] = ep.collisions[new], ep.final_error[new]
+            if cfg.hold_steps and ep.held is not None:
+                held[ids] = ep.held[new] >= HOLD_SHARE
             done[ids] = True
-    ok = formed & (collisions == 0)
+    ok = formed & (collisions == 0) & held
     return EvalSummary(
         success_rate=float(ok.mean()),
         mean_steps=float(steps[formed].mean()) if formed.any() else math.nan,

@@ -106,3 +106,25 @@ def test_a_short_plan_run_trains_and_exports(tmp_path: Path) -> None:
     brain = load_brain(str(tmp_path / "b.onnx"))
     assert brain.spec == PLAN_SPEC
     assert evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False).success_rate > 0.0
+
+
+def test_a_plan_brain_trains_under_realistic_sensing_with_a_hold_window(tmp_path: Path) -> None:
+    """Each robot of the training world on its own noisy, late, gappy view (the robot's own
+    pipeline), episodes that go on 5 steps after forming: the run trains, evaluates held out
+    and exports a brain that runs."""
+    cfg = TrainConfig(algo="ppo", obs="plan", residual=True, travel_weight=PLAN_WEIGHT,
+                      train_safety=True, n_robots=5, n_envs=4, rollout_steps=8, minibatch=64,
+                      policy_steps=2, value_steps=2, eval_every=1, eval_episodes=4, seed=0,
+                      init_std=0.1, conditions="realistic", hold_steps=5)
+    plan = RunPlan(patterns=["random"], out=tmp_path / "b.onnx", episodes=8, progress=False,
+                   write_files=False)
+    res = train(cfg, plan)
+    assert res.episodes >= 8 and np.isfinite(res.curve[-1]["mean_reward"])
+    assert any(not math.isnan(r["eval_success"]) for r in res.curve)
+    write_brain(res.agent, tmp_path / "b.onnx", BrainManifest(observation=obs_spec_for(cfg)))
+    brain = load_brain(str(tmp_path / "b.onnx"))
+    assert brain.spec == PLAN_SPEC
+    assert evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False,
+                          conditions=cfg.world_conditions, estimator=True).collisions == 0
+    with pytest.raises(ValueError, match="hold_steps"):
+        TrainConfig(hold_steps=-1)
