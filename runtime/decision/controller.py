@@ -32,15 +32,12 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame
 from runtime.decision.safety import OrcaParams, landing, make_filter
-from runtime.decision.settle import Lander, Settle
+from runtime.decision.settle import CENTROID_FRAME, Lander, Settle
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["HEADING_MIN_MOVE_M", "TURN_IN_PLACE_MPS", "Controller"]
 
-CENTROID_FRAME = 1.0
-"""The travel weight of the team's centroid frame, where a plan lands under noise
-(:class:`runtime.decision.settle.Settle`)."""
 TURN_IN_PLACE_MPS = 1e-3
 """A differential-drive command the guard would stop keeps this speed (m/s, 0.1 mm a step)
 and its direction, so the base still turns toward it: stopped outright, two bases facing
@@ -170,7 +167,7 @@ class Controller:
         if spec.name == "plan":  # the slot in the plan's frame (the whole team's)
             pts = self._cc[slots]
             tx, ty, k = self._plan.solve_floats(pos, pts, spec.travel_weight, self.world)
-            if self._lander is not None and k <= self._lander.settle.centroid_steps:
+            if self._lander is not None and self._lander.settle.lands_in_centroid(k):
                 tx, ty, k = self._plan.solve_floats(pos, pts, CENTROID_FRAME, self.world)
             qx, qy = pts[i].tolist()
             return qx + tx, qy + ty, k
@@ -186,7 +183,7 @@ class Controller:
         if team is not None:  # a team rule plans from the poses
             c = np.asarray(self._pattern_obj, dtype=np.float64)
             out, k = team(P, c[None], slots[None])
-            if self._lander is not None and float(k[0]) <= self._lander.settle.centroid_steps:
+            if self._lander is not None and self._lander.settle.lands_in_centroid(k[0]):
                 out, k = team(P, c[None], slots[None], CENTROID_FRAME)  # landing under noise
             vx, vy = np.asarray(out)[0, i].tolist()
             return vx, vy, float(k[0])

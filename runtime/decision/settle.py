@@ -43,7 +43,8 @@ from runtime.decision.estimator import steady_sigma
 from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["Lander", "Settle", "damp_landing", "landing_gain", "settle_for"]
+__all__ = ["CENTROID_FRAME", "Lander", "Settle", "damp_landing", "landing_gain",
+           "settle_for"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,15 @@ class Settle:
     centroid_steps: float = 2.0
     """A synchronised plan with this many steps left or fewer lands in the team's centroid
     frame (see the module docstring, "Landing frame")."""
+
+    def lands_in_centroid(self, steps_left: Any) -> Any:
+        """Whether a plan with ``steps_left`` (a number or an array) lands in the centroid
+        frame (travel weight :data:`CENTROID_FRAME`) rather than its own."""
+        return np.asarray(steps_left) <= self.centroid_steps
+
+
+CENTROID_FRAME = 1.0
+"""The travel weight of the team's centroid frame, where a plan lands under noise."""
 
 
 def settle_for(conditions: Conditions, estimator: bool = False,

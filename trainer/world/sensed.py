@@ -32,13 +32,11 @@ from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
 from runtime.decision.rules import plan_targets
-from runtime.decision.settle import settle_for
+from runtime.decision.settle import CENTROID_FRAME, settle_for
 from runtime.types import Array, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["SensedRows"]
-
-CENTROID_FRAME = 1.0
 
 
 class SensedRows:
@@ -58,8 +56,7 @@ class SensedRows:
         seeds = [np.random.SeedSequence((seed, 2, first_env + e, i))
                  for e in range(E) for i in range(n)]
         self.perception = Perception(conditions, observer, seeds, estimator=True, world=world)
-        settle = settle_for(conditions, True, world)
-        self.centroid_steps = settle.centroid_steps if settle is not None else 0.0
+        self.settle = settle_for(conditions, True, world)
         self._slots: IntArray = np.tile(np.arange(n, dtype=np.int64), (E * n, 1))
         self._potentials: Array = np.zeros((E * n, n))
         self._has_prev = np.zeros(E * n, dtype=bool)
@@ -97,7 +94,8 @@ class SensedRows:
         K: Array = np.ones(E * n)
         if self.spec.name == "plan":
             G, K = plan_targets(P, C, slots, self.spec.travel_weight, self.world)
-            land = K <= self.centroid_steps  # under noise, the last steps in the centroid frame
+            land = (np.zeros(len(K), dtype=bool) if self.settle is None
+                    else self.settle.lands_in_centroid(K))  # under noise: the centroid frame
             if land.any():
                 G[land], K[land] = plan_targets(P[land], C[land], slots[land], CENTROID_FRAME,
                                                 self.world)
