@@ -256,17 +256,31 @@ def _timeliness(misses: int, stale: int, held: int, n: int, steps: int) -> dict[
             "stale_share": round(stale / rs, 4), "held_share": round(held / rs, 4)}
 
 
-def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
+LAUNCH_CONFIGS = {
+    "launch": (),
+    "launch-insecure": ("--insecure",),
+    "launch-unrecorded": ("--no-record",),
+    "launch-bare": ("--insecure", "--no-record"),
+}
+"""``patternrl launch`` as users run it (``launch``: mutual TLS, the log and its scene), and
+with TLS off, the log off, or both: the launcher's own options, one feature at a time."""
+
+
+def run_launch(n: int, max_steps: int, seed: int = 0, config: str = "launch") -> dict[str, Any]:
     """``patternrl launch`` with its defaults (TLS, router above 20, the log and its scene),
-    realtime, one circle (or ``max_steps``); figures from its JSON line and its log."""
+    or ``config``'s options off, realtime, one circle (or ``max_steps``); figures from its
+    JSON line and (recorded) its log."""
     from sim_bridge.log.reader import read_log
 
     tmp = Path(tempfile.mkdtemp(prefix="swarm-scale-"))
     rec = tmp / "run.mcap"
+    recorded = "--no-record" not in LAUNCH_CONFIGS[config]
     cmd = [sys.executable, "-c", "from patternrl.cli import main; raise SystemExit(main())",
            "launch", "--robots", str(n), "--patterns", "circle", "--mode", "realtime",
-           "--seed", str(seed), "--max-steps", str(max_steps), "--record", str(rec),
-           "--json", "--no-plot", "--start-timeout-s", "300", "--verbose"]
+           "--seed", str(seed), "--max-steps", str(max_steps),
+           "--record", str(rec),
+           "--json", "--no-plot", "--start-timeout-s", "300", "--verbose",
+           *LAUNCH_CONFIGS[config]]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
     at_start: list[float] = []  # CPU of the run's processes when the pattern began
@@ -290,17 +304,24 @@ def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
         if not lines:
             raise RuntimeError(f"launch gave no result (exit {code}): {''.join(err)[-1500:]}")
         res = json.loads(lines[-1])
-        run = read_log(rec)
-        (end,) = run.events_of("run_end") or [{}]
-        ages = [int(a) for e in run.events_of("stale_command") for a in e.get("ages", [])]
+        ages: list[int] = []
+        if recorded:
+            run = read_log(rec)
+            ages = [int(a) for e in run.events_of("stale_command") for a in e.get("ages", [])]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     (ph,) = res["phases"]
     steps = ph["steps"]
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     cpu -= at_start[0] if at_start else 0.0
+    end = res.get("world_cpu") or {}
+    per_step = 1000.0 / max(1, end.get("steps", 0))
+    split = {k: round(v * per_step, 3) for k, v in end.get("stepping_cpu_split_s", {}).items()}
+    process = end.get("process_cpu_s", 0.0) * per_step
+    stepping = end.get("stepping_cpu_s", 0.0) * per_step
+    writer = end.get("writer_cpu_s", 0.0) * per_step
     return {
-        "config": "launch", "seed": seed, "n": n, "mode": "realtime",
+        "config": config, "seed": seed, "n": n, "mode": "realtime",
         "topology": "router" if n > 20 else "peer", "steps": steps, "formed": ph["formed"],
         "lower_bound_steps": ph["lower_bound_steps"], "collisions": ph["collisions"],
         "min_separation_m": ph["min_separation_m"],
@@ -314,8 +335,11 @@ def run_launch(n: int, max_steps: int, seed: int = 0) -> dict[str, Any]:
         "world_overruns": end.get("overruns"),
         "latency_ms_p50": None, "latency_ms_p99": None,
         "cpu_ms_per_robot_step": round(cpu * 1000.0 / max(1, n * steps), 3),
-        "world_cpu_ms_per_step": (round(end["stepping_cpu_s"] * 1000.0 / max(1, end["steps"]), 3)
-                                  if end.get("stepping_cpu_s") is not None else None),
+        "world_cpu_ms_per_step": round(stepping, 3) if end else None,
+        "world_split_ms_per_step": split,
+        "world_writer_ms_per_step": round(writer, 3),
+        "world_process_ms_per_step": round(process, 3),
+        "world_other_threads_ms_per_step": round(max(0.0, process - stepping - writer), 3),
         "pss_mb_median": None, "rss_mb_median": None, "start_s": None,
         "wall_s": round(wall, 1), "tcp_links": None, "threads_per_robot": None,
         "router_cpu_ms_per_step": None, "exit": code,
@@ -353,7 +377,9 @@ def main() -> int:
                          "mesh; auto (default, as launch): peer up to 20 robots, router above")
     ap.add_argument("--configs", default="launch,open",
                     help="realtime runs per size: launch (patternrl launch's defaults: TLS, "
-                         "router, log, scene) and/or open (open, unrecorded; default both)")
+                         "router, log, scene), launch-insecure (TLS off), launch-unrecorded "
+                         "(--no-record), launch-bare (both off), open (the world in this "
+                         "process, open, unrecorded); default launch,open")
     ap.add_argument("--seed", type=int, default=0, help="seed of the start positions")
     ap.add_argument("--no-decision", action="store_true",
                     help="skip part 3 (one decision beside onnxruntime)")
@@ -368,10 +394,15 @@ def main() -> int:
     decisions = ([] if args.no_decision
                  else [decision_figures(brain, n, samples) for n in (10, 50, 100)])
     configs = [c for c in args.configs.split(",") if c]
+    unknown = sorted(set(configs) - set(LAUNCH_CONFIGS) - {"open"})
+    if unknown:
+        ap.error(f"unknown --configs {','.join(unknown)}: choose from "
+                 f"{', '.join([*LAUNCH_CONFIGS, 'open'])}")
     realtime = []
     for n in sizes:
-        if "launch" in configs:
-            realtime.append(run_launch(n, max_steps, args.seed))
+        for c in configs:
+            if c in LAUNCH_CONFIGS:
+                realtime.append(run_launch(n, max_steps, args.seed, c))
         if "open" in configs:
             realtime.append(run_swarm(n, "realtime", max_steps, args.brain, args.seed,
                                       topology=args.topology))
@@ -394,7 +425,7 @@ def main() -> int:
     print(f"\nrealtime, 10 Hz target, one circle (or {max_steps} steps), seed {args.seed}; "
           "launch: patternrl launch's defaults (mutual TLS, router above 20, log + scene); "
           "open: open TCP, no log, no scene")
-    head = (f"{'config':<6} {'robots':>6} {'steps/s':>7} {'in time':>7} {'stale':>6} "
+    head = (f"{'config':<17} {'robots':>6} {'steps/s':>7} {'in time':>7} {'stale':>6} "
             f"{'held':>6} {'age':>3} {'guard':>5} {'formed':>6} {'steps':>5} {'lb':>4} "
             f"{'x lb':>5} {'coll':>4} {'cpu ms/robot/step':>17} {'world ms/step':>13} "
             f"{'p50 ms':>7} {'p99 ms':>7} {'PSS MB':>6} {'start s':>7} {'load':>5} topology")
@@ -405,7 +436,7 @@ def main() -> int:
             print(head)
             continue
         ratio = r["steps"] / r["lower_bound_steps"] if r["lower_bound_steps"] else float("nan")
-        print(f"{r['config']:<6} {r['n']:>6} {r['steps_per_s']!s:>7} "
+        print(f"{r['config']:<17} {r['n']:>6} {r['steps_per_s']!s:>7} "
               f"{100 * r['in_time_share']:>6.1f}% {100 * r['stale_share']:>5.1f}% "
               f"{100 * r['held_share']:>5.1f}% {r['command_age_max']:>3} {r['guard_scaled']:>5} "
               f"{'yes' if r['formed'] else 'no':>6} {r['steps']:>5} "
@@ -414,6 +445,19 @@ def main() -> int:
               f"{r['latency_ms_p50']!s:>7} {r['latency_ms_p99']!s:>7} "
               f"{r['pss_mb_median']!s:>6} {r['start_s']!s:>7} "
               f"{r['load_average_1min']:>5} {r['topology']}")
+    split = [r for r in realtime if r.get("world_split_ms_per_step")]
+    if split:
+        print("\nthe world's CPU per step (ms): its stepping thread by section, the log's writer "
+              "thread, the rest of its process (Zenoh's I/O and TLS)")
+        names = list(split[0]["world_split_ms_per_step"])
+        print(f"{'config':<17} {'robots':>6} " + " ".join(f"{k:>8}" for k in names)
+              + f" {'stepping':>8} {'writer':>8} {'other':>8} {'process':>8}")
+        for r in split:
+            print(f"{r['config']:<17} {r['n']:>6} "
+                  + " ".join(f"{r['world_split_ms_per_step'].get(k, 0.0):>8.2f}" for k in names)
+                  + f" {r['world_cpu_ms_per_step']:>8.2f} {r['world_writer_ms_per_step']:>8.2f}"
+                  f" {r['world_other_threads_ms_per_step']:>8.2f}"
+                  f" {r['world_process_ms_per_step']:>8.2f}")
     if not decisions:
         return 0
     print("\none decision (Controller.decide, general brain, ORCA on) beside onnxruntime alone")

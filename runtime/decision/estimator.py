@@ -42,6 +42,17 @@ episodes, n = 10: p95 0.13 m -> 0.20 m); keeping the still gains only while the 
 stays under 2.5-3 sigmas of the noise brought the error back but held 10 cm noise 46-64 %
 instead of 73 % (100 episodes), and was left out.
 
+**Peers out of view** (a robot that sees only its k nearest, or within a range) are not
+lost, they are elsewhere, and a team that plans from where it last saw them plans from a
+team that is not there: each robot's frame and assignment drift apart from the others'.
+Every robot got the whole team at the start (the roll call) and every robot computes the
+same synchronised plan from it (:class:`runtime.decision.rules.FrameRule`), so each also
+knows where the plan sends the peers it cannot see: ``update(..., follow=)`` carries them
+along the plan's velocities of the last step, and the plan reads them where they are now,
+not where they were last seen. A peer that comes back into view is taken as sensed again.
+The plan stays the same for all robots as long as their pictures agree; ORCA's detours and
+the views of the nearest peers are what makes them differ, and what corrects them.
+
 ``sigma_m`` (B, n) is the filter's own figure of its position error: the noise the
 steady-state filter leaves, ``noise sqrt(alpha / (2 - alpha))``, plus half a step at
 full speed for every step a peer went without an update beyond its latency. The safety
@@ -116,11 +127,20 @@ class PeerTracker:
         self._z: Array | None = None
         self.sensed: Array = np.zeros((0, 0, 2))
         self._gap: IntArray = np.zeros((0, 0), dtype=np.int64)
+        self._followed: BoolArray = np.zeros((0, 0), dtype=bool)
+        """(B, n) peers carried along their plan since their last update"""
 
-    def update(self, view: Array, age: IntArray) -> tuple[Array, Array, Array]:
+    def update(self, view: Array, age: IntArray, follow: Array | None = None
+               ) -> tuple[Array, Array, Array]:
         """(positions now (B, n, 2) m, velocities (B, n, 2) m/s, sigma_m (B, n)) from this
         step's ``view`` (B, n, 2) and its ``age`` (B, n) steps. ``sensed`` then holds the
-        smoothed positions as of when they were sensed (not carried forward)."""
+        smoothed positions as of when they were sensed (not carried forward).
+
+        ``follow`` (B, n, 2) m/s, NaN where unknown: the velocity each peer's plan gave it
+        last step, as the observer computed the team's plan. A peer that sent nothing
+        this step is then carried along it (``x += follow dt``, ``v = follow``) instead of
+        its last velocity, and ``sensed`` has it where it is now (see the module
+        docstring's "Peers out of view")."""
         z = np.asarray(view, dtype=np.float64)
         a = np.asarray(age, dtype=np.int64)
         B = z.shape[0]
@@ -135,6 +155,7 @@ class PeerTracker:
             self._age[r0] = a[r0]
             self._own[r0] = own[r0]
             self._gap[r0] = 0
+            self._followed[r0] = False
             if self._z is not None:
                 self._z[r0] = z[r0]
         self._restart = None
@@ -146,10 +167,15 @@ class PeerTracker:
             self._own = own.copy()
             self._z = z.copy()
             self._gap = np.zeros(a.shape, dtype=np.int64)
+            self._followed = np.zeros(a.shape, dtype=bool)
         else:
             x, v = self._x, self._v
+            new = a <= self._age  # 2. (below) update where a position arrived
+            if follow is not None:  # 1'. a peer not heard from goes the way the plan said
+                followed = ~new & np.isfinite(follow[..., 0])
+                v[followed] = follow[followed]
+                self._followed |= followed
             x += v * dt  # 1. predict
-            new = a <= self._age  # 2. update where a position arrived
             self._gap += 1
             if self.exact:  # the view's own motion since its last update, carried forward
                 assert self._z is not None
@@ -167,6 +193,7 @@ class PeerTracker:
                     x += self.alpha * r
                     v += (self.beta / dt) * r
             self._gap[new] = 0
+            self._followed &= ~new
             self._z = z.copy()
             speed = np.hypot(v[..., 0], v[..., 1])
             over = speed > vmax
@@ -177,7 +204,7 @@ class PeerTracker:
             v[rows, self.observer] = (own - self._own) / dt
             x[rows, self.observer] = own
             self._own = own.copy()
-        self.sensed = self._x - (a * dt)[..., None] * self._v
+        self.sensed = self._x - (np.where(self._followed, 0, a) * dt)[..., None] * self._v
         stale = np.maximum(a - self.latency_steps, 0)
         sigma = self._sigma0 + 0.5 * vmax * dt * stale
         sigma[rows, self.observer] = 0.0

@@ -107,19 +107,32 @@ class Perception:
         if self._own is not None:
             self._own_restart[np.asarray(observers, dtype=np.int64)] = True
 
-    def perceive(self, truth: Array) -> Seen:
+    @property
+    def follows_plans(self) -> bool:
+        """Whether the tracker carries peers out of view along the team's plan
+        (:meth:`perceive`'s ``follow``): views of the nearest peers or within a range."""
+        c = self.conditions
+        return self.tracker is not None and self.estimator and (
+            c.k_nearest > 0 or math.isfinite(c.range_m))
+
+    def perceive(self, truth: Array, follow: Array | None = None) -> Seen:
         """Each robot's team this step, from the team as it truly is now, ``truth`` (B, n, 2).
 
         With a tracker, the filter's guard pairs each peer's last sensed position (the raw
         view: the tracker's smoothing lags a peer that turns or stops, by up to 10 cm in a
         step, more than the noise it removes) with the robot's own pose at that step (its
         age): both robots of a pair then bound their approach from the same moment,
-        whatever happened since, unseen."""
+        whatever happened since, unseen.
+
+        ``follow`` (B, n, 2) m/s, NaN where none: each robot's plan of last step for its
+        team (:attr:`runtime.decision.controller.Controller.team_velocity`); under
+        :attr:`follows_plans` a peer out of view is carried along it."""
         view, age = self.sensor.sense(truth)
         self.last_age = age
         if self.tracker is None:
             return Seen(view)
-        now, vel, _ = self.tracker.update(view, age)
+        now, vel, _ = self.tracker.update(view, age,
+                                          follow if self.follows_plans else None)
         B = view.shape[0]
         own = view[np.arange(B), self.observer]
         if self._own is None or self._own.shape[1] != B:
@@ -175,6 +188,7 @@ class LocalDecisions:
                                        conditions.diff_turn_rps)
                             for _ in range(E * n)]
         self.step = 0
+        self._follow: Array | None = None  # (E n, n, 2) each robot's plan of the last step
         self.last_view: Array | None = None
         """The last step's perceived team per robot, (E, n, n, 2) m (estimates when on)."""
 
@@ -186,8 +200,10 @@ class LocalDecisions:
         sense, so their views stay current)."""
         E, n = self.n_envs, self.n_robots
         P = np.asarray(truth, dtype=np.float64)
-        seen = self.perception.perceive(np.repeat(P, n, axis=0))
+        seen = self.perception.perceive(np.repeat(P, n, axis=0), self._follow)
         self.last_view = seen.plan.reshape(E, n, n, 2)
+        follow = self._follow = None if not self.perception.follows_plans else (
+            np.full((E * n, n, 2), np.nan))
         out = np.zeros((E, n, 2))
         slots = np.full((E, n), -1, dtype=np.int64)
         changed = np.zeros((E, n), dtype=bool)
@@ -203,5 +219,8 @@ class LocalDecisions:
                 out[e, i] = d.velocity
                 slots[e, i] = d.slot
                 changed[e, i] = d.safety_changed
+                team = self.controllers[b].team_velocity
+                if follow is not None and team is not None:
+                    follow[b] = team
         self.step += 1
         return out, slots, changed

@@ -450,11 +450,13 @@ class Robot:
     def _perceive(self, step: Step, positions: Array) -> Seen:
         """This step's team (``positions``, the poses of ``step``) as the robot perceives it:
         sensed once per world step (a repeated step in realtime reuses it, so latency counts
-        world steps)."""
+        world steps); peers out of view go along the plan of the robot's last decision."""
         assert self._perception is not None
         if self._perceived is None or self._perceived[0] != step.step:
-            self._perceived = (step.step,
-                               self._perception.perceive(np.asarray(positions)[None]).row(0))
+            team = self.controller.team_velocity
+            follow = team[None] if team is not None and len(team) == len(positions) else None
+            self._perceived = (step.step, self._perception.perceive(
+                np.asarray(positions)[None], follow).row(0))
         return self._perceived[1]
 
     def _stage_view(self, step: Step, seen: Seen) -> None:

@@ -115,6 +115,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"peer, linked to every other (a link per pair, one hop less); auto "
                         f"(default): peer up to {PEER_MAX_ROBOTS} robots, router above")
     p.add_argument("--no-plot", action="store_true", help="skip the trajectory figure")
+    p.add_argument("--no-record", action="store_true",
+                   help="run without the MCAP log (and so without its figure and replay); the "
+                        "robots' log and the run's keys still go beside the --record path")
     p.add_argument("-v", "--verbose", action="store_true", help="every world message")
     add_zenoh_arguments(p)  # the world's session; --tls-dir: keys of 'patternrl keys create'
 
@@ -295,9 +298,10 @@ def draw_figure(record: Path, n_robots: int, patterns: list[str], say: Say) -> P
         return None
 
 
-def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice], record: Path,
-                 robots_log: Path, png: Path | None, failed_start: bool, out: IO[str]) -> None:
-    """The table and the verdict line, or the one JSON line."""
+def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice],
+                 record: Path | None, robots_log: Path, png: Path | None, failed_start: bool,
+                 out: IO[str]) -> None:
+    """The table and the verdict line, or the one JSON line (``record`` None: no log)."""
     if as_json:
         d: dict[str, Any] = result_dict(res)
         d.update(figure=str(png) if png else None, robots_log=str(robots_log),
@@ -306,7 +310,8 @@ def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice], 
         return
     if res.phases:
         print(format_table(res.phases), file=out)
-    tail = f"log {record}" + (f", figure {png}" if png else "") + f", robots {robots_log}"
+    tail = ((f"log {record}" if record is not None else "no log")
+            + (f", figure {png}" if png else "") + f", robots {robots_log}")
     done = "every pattern formed" if res.all_formed else "NOT every pattern formed"
     if res.all_formed and res.hold_steps:
         done = "every pattern formed and held" if res.all_held else "NOT every pattern held"
@@ -327,7 +332,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         brains, brains_line = pick_brains(args.brains, patterns, args.robots, args.brain_kind)
         cfg = world_config_from_args(args, brains)
-        if args.record is not None:  # the default demo log is the demo's own to overwrite
+        if args.record is not None and not args.no_record:  # refused if it exists (not the demo's)
             check_output(args.record, args.force)
         if args.foxglove is not None:
             parse_address(args.foxglove)
@@ -388,7 +393,10 @@ def run(args: argparse.Namespace) -> int:
         live: FoxgloveLive | None = None
         try:
             live = start_live(args.foxglove, say)
-            rec = Recorder(record, live=live, threaded=True)  # writing off the world's path
+            # writing off the world's path; the live view alone without a file
+            rec: Recorder | None = (Recorder(None if args.no_record else record, live=live,
+                                             threaded=True)
+                                    if live is not None or not args.no_record else None)
         except InputError as e:
             if live is not None:
                 live.close()
@@ -422,7 +430,8 @@ def run(args: argparse.Namespace) -> int:
         first = brains[patterns[0]].ref
         hub = "router" if router is not None else "world, peers"
         say(f"{brains_line}; {args.robots} robots, {args.mode}, swarm {swarm} "
-            f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), log {record}")
+            f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), "
+            + ("no log" if args.no_record else f"log {record}"))
         say(f"reach this swarm (patternrl record, swap) with: {creds.tool_flags(swarm, port)}")
         res: RunResult | None = None
         try:
@@ -436,7 +445,8 @@ def run(args: argparse.Namespace) -> int:
             watcher_stop.set()
             progress.clear()
             robots.stop()
-            rec.close()
+            if rec is not None:
+                rec.close()
             if live is not None:
                 live.close()
             session.close()  # type: ignore[no-untyped-call]
@@ -446,10 +456,11 @@ def run(args: argparse.Namespace) -> int:
             for s, h in old.items():
                 signal.signal(s, h)
         assert res is not None  # world.run() returned (it raises only on a bug)
-        png = None if args.no_plot or not res.phases else draw_figure(record, args.robots,
-                                                                       patterns, say)
+        png = (None if args.no_plot or args.no_record or not res.phases
+               else draw_figure(record, args.robots, patterns, say))
         failed_start = bool(robots.failed()) and res.steps == 0
-        print_report(res, args.json, brains, record, robots_log, png, failed_start, out)
+        print_report(res, args.json, brains, None if args.no_record else record, robots_log,
+                     png, failed_start, out)
         if failed_start:
             return 1
         if interrupted.is_set() or res.outcome == "interrupted":

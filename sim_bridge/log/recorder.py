@@ -208,6 +208,8 @@ class Recorder:
         """``threaded``: messages not written because the writer's queue was full"""
         self.writer_errors = 0
         """``threaded``: messages whose writing raised (the writer goes on)"""
+        self.writer_cpu_s = 0.0
+        """``threaded``: CPU seconds the writer thread has spent so far"""
         self._clock_ns: int | None = None  # the writer's item: when it was queued
         self._queue: queue.Queue[tuple[Callable[..., None], tuple[Any, ...], int] | None] | None
         self._queue = None
@@ -231,8 +233,10 @@ class Recorder:
 
     def _write_queued(self) -> None:
         assert self._queue is not None
+        cpu0 = time.thread_time()
         while True:
             item = self._queue.get()
+            self.writer_cpu_s = time.thread_time() - cpu0
             if item is None:
                 return
             fn, args, self._clock_ns = item

@@ -75,6 +75,11 @@ class RunResult:
     wall_s: float
     record: str | None
     latencies_ms: list[float] = field(default_factory=list, repr=False)
+    world_cpu: dict[str, Any] = field(default_factory=dict)
+    """What the world's process spent while the patterns played: ``stepping_cpu_s`` (its
+    stepping thread), ``stepping_cpu_split_s`` (that, by section), ``writer_cpu_s`` (the
+    log's writer thread), ``process_cpu_s`` (every thread: Zenoh's I/O and TLS too),
+    ``steps`` and ``overruns``."""
 
     @property
     def all_formed(self) -> bool:
@@ -111,4 +116,4 @@ def result_dict(res: RunResult) -> dict[str, Any]:
     return {"outcome": res.outcome, "all_formed": res.all_formed, "all_held": res.all_held,
             "steps": res.steps,
             "wall_s": res.wall_s, "record": res.record,
-            "phases": [asdict(p) for p in res.phases]}
+            "phases": [asdict(p) for p in res.phases], "world_cpu": res.world_cpu}

@@ -56,7 +56,12 @@ from sim_bridge.live.foxglove_live import DEFAULT_ADDRESS, FoxgloveLive, parse_a
 from sim_bridge.log.recorder import Recorder, check_output
 from sim_bridge.world.brain_choice import BrainChoice, brains_from_arg
 from sim_bridge.world.run_results import RunResult, result_dict
-from sim_bridge.world.sim_world import DEFAULT_PATTERNS, SimConfig, SimWorld
+from sim_bridge.world.sim_world import (
+    DEFAULT_PATTERNS,
+    STEP_LIMIT_OVER_BOUND,
+    SimConfig,
+    SimWorld,
+)
 from sim_bridge.world.world_link import DEFAULT_MAX_AGE_STEPS
 
 WORLD_SWITCH_INTERVAL_S = 0.001
@@ -89,8 +94,9 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
     p.add_argument("--seed", type=int, default=0, help="seed of the start positions (default 0)")
     p.add_argument("--step-deadline-ms", type=float, default=250.0,
                    help="lockstep: a robot not answered by then holds still (default 250)")
-    p.add_argument("--max-steps", type=int, default=DEFAULT_WORLD.step_limit,
-                   help=f"step limit per pattern (default {DEFAULT_WORLD.step_limit})")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help=f"step limit per pattern (default: {STEP_LIMIT_OVER_BOUND}x the "
+                        f"pattern's steps lower bound, at least {DEFAULT_WORLD.step_limit})")
     p.add_argument("--hold-steps", type=int, default=0, metavar="N",
                    help="watch each formed pattern N steps more before the next; it held when "
                         f"still formed on {HOLD_SHARE * 100:.0f}%% of them, else the run fails "
@@ -156,7 +162,7 @@ def config_from_args(args: argparse.Namespace, brains: dict[str, BrainChoice] | 
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
-    if args.max_steps < 1:
+    if args.max_steps is not None and args.max_steps < 1:
         raise InputError(f"--max-steps must be >= 1, got {args.max_steps}")
     hold = getattr(args, "hold_steps", 0)
     if not 0 <= hold <= MAX_HOLD_STEPS:

@@ -61,6 +61,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -92,6 +93,15 @@ HELD_AVERAGING = 0.2
 """Weight of a step in the average of the held share."""
 SLOW_DOWN, SPEED_UP = 1.1, 1.02
 """Factors on the period per step: slow down fast, speed up gently."""
+STEP_LIMIT_OVER_BOUND = 2
+"""Without ``--max-steps``, a pattern gets this many times its steps lower bound (at least
+the world's ``step_limit``): a hundred robots in the arena of four patterns start up to
+700 steps from the circle, which no fixed limit of 400 lets them form."""
+
+
+def phase_step_limit(lower_bound_steps: int, world: WorldConfig = DEFAULT_WORLD) -> int:
+    """The step limit of a pattern whose steps lower bound is ``lower_bound_steps``."""
+    return max(world.step_limit, STEP_LIMIT_OVER_BOUND * int(lower_bound_steps))
 
 
 @dataclass
@@ -105,7 +115,8 @@ class SimConfig:
     seed: int = 0
     step_deadline_ms: float = 250.0
     first_step_deadline_ms: float = 5000.0
-    max_steps: int = DEFAULT_WORLD.step_limit
+    max_steps: int | None = None
+    """Step limit per pattern; None: :func:`phase_step_limit` of its lower bound."""
     hold_steps: int = 0
     """Steps a formed pattern is watched before the next (0: the next at the first passage)."""
     rate_hz: float = 1.0 / DEFAULT_WORLD.dt_s
@@ -145,6 +156,8 @@ class _Phase:
     choice: BrainChoice | None
     lower_bound_steps: int
     lower_bound_travel_m: float
+    limit: int
+    """The phase's step limit."""
     start_step: int
     late0: int
     t_start: float
@@ -161,6 +174,30 @@ class _Phase:
     @property
     def label(self) -> str:
         return pattern_label(self.name)
+
+
+CPU_SECTIONS = ("exchange", "guard", "physics", "measures", "log")
+"""What the world's thread spends a step's CPU on: exchange (the poses encoded and published,
+the commands received and checked), guard (wheels, the stale-command guard, the rate),
+physics (pymunk), measures (formation, collisions, the phase's tally), log (the metrics row
+and the Foxglove scene built and queued for the recorder's writer)."""
+
+
+class _Stopwatch:
+    """CPU time of this thread, lap by lap, added to ``into[section]``."""
+
+    def __init__(self, into: dict[str, float]) -> None:
+        self.into = into
+        self.start = self.last = time.thread_time()
+
+    def lap(self, section: str) -> None:
+        now = time.thread_time()
+        self.into[section] += now - self.last
+        self.last = now
+
+    @property
+    def total(self) -> float:
+        return self.last - self.start
 
 
 def _print_say(msg: str, detail: bool) -> None:
@@ -191,6 +228,9 @@ class SimWorld:
         # out: wall, and CPU of the world's thread.
         self.stepping_wall_s = 0.0
         self.stepping_cpu_s = 0.0
+        self.cpu_split_s = dict.fromkeys(CPU_SECTIONS, 0.0)
+        self._process_cpu0 = time.process_time()
+        """CPU of the world's thread in steps, by what it spent it on (:data:`CPU_SECTIONS`)."""
         self._tick: float | None = None  # realtime: when the current step's period began
         self.period_s = 1.0 / cfg.rate_hz
         """realtime: the current period (longer than 1 / rate_hz while robots cannot keep up)."""
@@ -267,22 +307,35 @@ class SimWorld:
                                             self.physics.positions())
         finally:
             wall = time.monotonic() - t0
+            cpu = self._cpu_figures()
             self.journal.event(
-                "run_end", outcome=outcome, steps=self.step, wall_s=round(wall, 3),
+                "run_end", outcome=outcome, wall_s=round(wall, 3),
                 formed=[p.formed for p in phases], malformed=self.malformed,
                 over_budget=self.link.budget.dropped,
-                contacts_total=self.physics.contacts_total,
-                stepping_cpu_s=round(self.stepping_cpu_s, 4),
-                stepping_wall_s=round(self.stepping_wall_s, 4), overruns=self.overruns,
+                contacts_total=self.physics.contacts_total, **cpu,
+                stepping_wall_s=round(self.stepping_wall_s, 4),
                 rate_hz_end=round(1.0 / self.period_s, 3),
                 log_dropped=self.rec.dropped if self.rec is not None else 0)
             self.link.close()
         return RunResult(phases, outcome, self.step, round(wall, 3),
                          str(self.rec.path) if self.rec and self.rec.path else None,
-                         self.latencies_ms)
+                         self.latencies_ms, cpu)
+
+    def _cpu_figures(self) -> dict[str, Any]:
+        """The world's CPU while the patterns played (:attr:`RunResult.world_cpu`)."""
+        played = self.step > 0
+        return {
+            "steps": self.step, "overruns": self.overruns,
+            "stepping_cpu_s": round(self.stepping_cpu_s, 4),
+            "stepping_cpu_split_s": {k: round(v, 4) for k, v in self.cpu_split_s.items()},
+            "writer_cpu_s": round(self.rec.writer_cpu_s, 3) if self.rec is not None else 0.0,
+            "process_cpu_s": (round(time.process_time() - self._process_cpu0, 3) if played
+                              else 0.0),
+        }
 
     def _play(self, phases: list[PhaseResult]) -> str:
         """Place the robots and play the patterns in turn; the outcome."""
+        self._process_cpu0 = time.process_time()  # the process's CPU from here: stepping on
         self.members.place_start(self.cfg.robots)
         outcome = "done"
         for k, name in enumerate(self.cfg.patterns):
@@ -304,7 +357,7 @@ class SimWorld:
             if ph.first is None and ph.tally.formed(self.w):  # the first passage
                 ph.first = (ph.steps, ph.tally.travel_m, ph.tally.error_m)
             done = (ph.hold_done >= self.cfg.hold_steps if ph.first is not None
-                    else ph.steps >= self.cfg.max_steps)
+                    else ph.steps >= ph.limit)
             if done or self.stop_event.is_set():
                 break
             joined = self._follow_membership(ph)
@@ -333,8 +386,9 @@ class SimWorld:
                            brain=choice.label if choice else "robots' own")
         self.journal.say(f"pattern {index + 1}/{len(cfg.patterns)}: {pattern_label(name)} with "
                          f"{n} robots (lower bound {lb_steps} steps)", True)
-        ph = _Phase(index, name, C, choice, lb_steps, lb_travel, self.step, self.link.late,
-                    t_start)
+        limit = cfg.max_steps if cfg.max_steps is not None else phase_step_limit(lb_steps)
+        ph = _Phase(index, name, C, choice, lb_steps, lb_travel, limit, self.step,
+                    self.link.late, t_start)
         ph.tally.start(pos, C)
         return ph
 
@@ -369,9 +423,10 @@ class SimWorld:
         ids = list(self.physics.ids)
         pos = self.physics.positions()
         t_step = time.monotonic()
-        cpu_step = time.thread_time()
+        cpu = _Stopwatch(self.cpu_split_s)
         v, missed, age = self.link.exchange(self.step, self.w.dt_s, ids, pos,
                                             self._deadline_s(first), self.stop_event)
+        cpu.lap("exchange")
         if self.stop_event.is_set():
             return False
         v = self._wheels(ids, v)  # what the wheels make of the commands, then the guard
@@ -381,21 +436,25 @@ class SimWorld:
             scaled = [ids[k] for k in rows.tolist()]
         if self.cfg.mode == "realtime":
             self._adapt_rate(float(np.mean(age < 0)))
+        cpu.lap("guard")
         res = self.physics.step(v)
         self.link.moved(ids, pos)
         self.step += 1
         ph.steps += 1
+        cpu.lap("physics")
         m = ph.tally.step(ids, pos, res.positions, ph.C, res.new_contacts, missed, self.w,
                           age=age, scaled=scaled)
         brains = self.link.brains()
         ph.brain_ids.update(brains.get(r, "") for r in ids)
+        cpu.lap("measures")
         self.journal.step_measures(m)
         self.journal.record_step(ph.index, ph.label, self.version, ph.steps, ids,
                                  res.positions, ph.C, m, t_step,
                                  1.0 / self.period_s if self.cfg.mode == "realtime" else None,
                                  self.link.views())
+        cpu.lap("log")
         self.stepping_wall_s += time.monotonic() - t_step
-        self.stepping_cpu_s += time.thread_time() - cpu_step
+        self.stepping_cpu_s += cpu.total
         if self.on_progress is not None:
             self.on_progress(Progress(ph.index, len(self.cfg.patterns), ph.label, self.step,
                                       ph.steps, m.error_m, len(ids), ph.tally.deadline_misses))
@@ -435,7 +494,7 @@ class SimWorld:
         hold = self.cfg.hold_steps
         result = PhaseResult(
             index=ph.index, pattern=ph.label, n_robots=len(self.physics.ids),
-            formed=formed, steps=steps, step_limit=self.cfg.max_steps,
+            formed=formed, steps=steps, step_limit=ph.limit,
             lower_bound_steps=int(ph.lower_bound_steps), travel_m=round(travel_m, 6),
             lower_bound_travel_m=round(ph.lower_bound_travel_m, 6), collisions=t.collisions,
             contacts=t.contacts,

@@ -171,6 +171,29 @@ def test_launch_forms_and_reports(tmp_path: Path, procs: Any, kit: Any) -> None:
     assert [e["formed"] for e in run.events_of("phase_end")] == [True, True]
 
 
+def test_launch_without_a_log_reports_the_worlds_cpu(tmp_path: Path, procs: Any) -> None:
+    from sim_bridge.world.sim_world import CPU_SECTIONS, phase_step_limit
+
+    log = tmp_path / "unrecorded.mcap"
+    launch = procs.start("launch", "launch", "--robots", "4", "--patterns", "circle",
+                         "--record", str(log), "--no-record", "--seed", "2", "--json",
+                         "--swarm", swarm_name("nolog"), "--brains", "rule:assign")
+    assert launch.wait(timeout=90) == 0, procs.log("launch")
+    res = json.loads(procs.log("launch").strip().splitlines()[-1])
+    assert res["all_formed"] and res["record"] is None and res["figure"] is None
+    assert not log.exists() and log.with_suffix(".robots.log").exists()
+    (ph,) = res["phases"]
+    assert ph["step_limit"] == phase_step_limit(ph["lower_bound_steps"])
+    cpu = res["world_cpu"]
+    assert cpu["steps"] == res["steps"] == ph["steps"] > 0
+    split = cpu["stepping_cpu_split_s"]
+    assert list(split) == list(CPU_SECTIONS) and min(split.values()) >= 0.0
+    assert sum(split.values()) == pytest.approx(cpu["stepping_cpu_s"], abs=1e-3)
+    assert split["physics"] > 0.0 and split["exchange"] > 0.0
+    assert cpu["writer_cpu_s"] == 0.0  # no log: no writer
+    assert cpu["process_cpu_s"] >= cpu["stepping_cpu_s"] > 0.0
+
+
 def test_launch_ctrl_c_stops_every_child(tmp_path: Path, procs: Any, kit: Any) -> None:
     log = tmp_path / "int.mcap"
     swarm, port = swarm_name("int"), kit.free_port()

@@ -49,6 +49,7 @@ def test_everything_queued_from_many_threads_is_written(tmp_path: Path) -> None:
     rec.event("run_end", 50, 5.0, outcome="done")
     rec.flush()  # waits for the writer: what was queued is in the file now
     assert rec.messages_written >= 4 * 50 + 50 + 1
+    assert rec.writer_cpu_s > 0.0  # the writer's own CPU, counted on its thread
     rec.close()
     run = read_log(path)
     assert run.recovery.finished and rec.dropped == 0

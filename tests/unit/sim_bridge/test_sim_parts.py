@@ -26,6 +26,7 @@ from sim_bridge.world.brain_choice import BrainChoice, rule_choice
 from sim_bridge.world.brain_swaps import phase_brain_label
 from sim_bridge.world.membership import Roster
 from sim_bridge.world.phase_tally import PhaseTally, formation_measure
+from sim_bridge.world.sim_world import SimConfig, phase_step_limit
 from sim_bridge.world.world_link import WorldLink
 
 W = DEFAULT_WORLD
@@ -59,6 +60,12 @@ def test_phase_tally_counts_a_collision_once_per_encounter() -> None:
     assert tally.min_separation_m == pytest.approx(0.4 * gap)
     assert tally.travel_m == pytest.approx(7.7 * gap)
     assert not tally.formed(W)
+
+
+def test_a_pattern_gets_twice_its_lower_bound_and_at_least_the_worlds_step_limit() -> None:
+    assert SimConfig().max_steps is None  # the default: from each pattern's lower bound
+    assert phase_step_limit(0) == phase_step_limit(150) == DEFAULT_WORLD.step_limit
+    assert phase_step_limit(201) == 402 and phase_step_limit(694) == 1388
 
 
 def test_phase_brain_label() -> None:

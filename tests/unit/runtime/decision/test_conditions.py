@@ -151,6 +151,24 @@ def test_tracker_is_the_view_when_the_view_is_exact() -> None:
         assert np.allclose(x, P, atol=1e-12)
 
 
+def test_tracker_carries_a_peer_out_of_view_along_the_plan_and_takes_it_back_seen() -> None:
+    tr = PeerTracker(np.arange(1))
+    still = np.zeros((1, 2), dtype=np.int64)
+    team = np.array([[[0.0, 0.0], [5.0, 0.0]]])
+    tr.update(team, still)  # the roll call
+    follow = np.array([[[np.nan, np.nan], [0.0, 0.5]]])  # the plan: up at 0.5 m/s
+    for t in range(1, 5):  # out of view: the view keeps it where last seen, age growing
+        x, v, _ = tr.update(team, np.array([[0, t]]), follow)
+        assert np.allclose(x[0, 1], [5.0, 0.05 * t]) and np.allclose(v[0, 1], [0.0, 0.5])
+        assert np.allclose(tr.sensed[0, 1], x[0, 1])  # the plan reads it where it is now
+    x, _, _ = tr.update(np.array([[[0.0, 0.0], [5.1, 0.3]]]), still, follow)  # seen again
+    assert np.allclose(x[0, 1], [5.1, 0.3]) and np.allclose(tr.sensed[0, 1], [5.1, 0.3])
+    plain = PeerTracker(np.arange(1))  # without a plan: kept where last seen
+    plain.update(team, still)
+    x, _, _ = plain.update(team, np.array([[0, 3]]))
+    assert np.allclose(x[0, 1], [5.0, 0.0])
+
+
 def test_wheels_gain_noise_and_diff_drive() -> None:
     c = Conditions(gain_noise=0.1, act_noise_mps=0.0, kinematics="diff", turn_rate_rps=2.0)
     w = Wheels(c, 2, 50, list(np.random.SeedSequence(3).spawn(2)), 0.1)
