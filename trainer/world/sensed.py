@@ -61,6 +61,7 @@ class SensedRows:
         self._potentials: Array = np.zeros((E * n, n))
         self._has_prev = np.zeros(E * n, dtype=bool)
         self._eye = np.arange(n)
+        self._follow: Array | None = None  # (E n, n, 2) each robot's plan of the last step
 
     def restart(self, env_ids: IntArray) -> None:
         """These envs start new episodes: their robots' roll call, and no hysteresis."""
@@ -75,7 +76,8 @@ class SensedRows:
         ``truth`` (E, n, 2), and each env's centred ``pattern`` (E, n, 2); and each robot's
         plan steps left K (E, n) (1 for the general observation)."""
         E, n = self.n_envs, self.n_robots
-        seen = self.perception.perceive(np.repeat(np.asarray(truth, dtype=np.float64), n, 0))
+        seen = self.perception.perceive(np.repeat(np.asarray(truth, dtype=np.float64), n, 0),
+                                        self._follow)
         P = np.ascontiguousarray(seen.plan)  # (E n, n, 2) each robot's team
         V = np.zeros_like(P) if seen.vel is None else seen.vel
         C = np.repeat(np.asarray(pattern, dtype=np.float64), n, 0)
@@ -99,6 +101,8 @@ class SensedRows:
             if land.any():
                 G[land], K[land] = plan_targets(P[land], C[land], slots[land], CENTROID_FRAME,
                                                 self.world)
+            # each robot's plan for its whole team: peers out of view go along it next step
+            self._follow = (G - P) / (K * self.world.dt_s)[:, None, None]
         else:
             G = np.take_along_axis(Cc, slots[..., None], axis=1) + P.mean(axis=1, keepdims=True)
         obs = general_observation(P, P - V * self.world.dt_s, G, self.spec.k_neighbours,
