@@ -30,7 +30,7 @@ from runtime.core.orca import CHANGE_TOL_MPS
 from runtime.decision.kinematics import diff_drive_step
 from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
-from runtime.decision.rules import PlanFrame
+from runtime.decision.rules import PlanFrame, plan_velocity
 from runtime.decision.safety import OrcaParams, landing, make_filter
 from runtime.decision.settle import CENTROID_FRAME, Lander, Settle
 from runtime.types import Array, IntArray
@@ -174,7 +174,7 @@ class Controller:
             if self._lander is not None and self._lander.settle.lands_in_centroid(k):
                 tx, ty, k = self._plan.solve_floats(pos, pts, CENTROID_FRAME, self.world)
             qx, qy = pts[i].tolist()
-            self.team_velocity = (pts + np.array([tx, ty]) - pos) / (k * self.world.dt_s)
+            self.team_velocity = plan_velocity(pts + np.array([tx, ty]), pos, k, self.world)
             return qx + tx, qy + ty, k
         qx, qy = self._cc[int(slots[i])].tolist()
         return qx + cx, qy + cy, None  # == slot_positions(...)[i]

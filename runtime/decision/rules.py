@@ -140,8 +140,17 @@ def plan_step(
 ) -> tuple[Array, Array]:
     """:func:`frame_plan`'s velocities (E, n, 2) m/s and the plan's steps left K (E,)."""
     target, k = plan_targets(pos, pattern, slots, travel_weight, world)
-    out: Array = (target - np.asarray(pos, dtype=np.float64)) / (k * world.dt_s)[:, None, None]
-    return out, k
+    return plan_velocity(target, pos, k, world), k
+
+
+def plan_velocity(target: Array, pos: Array, steps_left: Array | float,
+                  world: WorldConfig = DEFAULT_WORLD) -> Array:
+    """The plan's velocities (..., n, 2) m/s: each robot's way to its ``target`` over the
+    ``steps_left`` K of its team (...,), so that all land at the same step."""
+    k = np.asarray(steps_left, dtype=np.float64)[..., None, None]
+    out: Array = (np.asarray(target, dtype=np.float64) - np.asarray(pos, dtype=np.float64)) \
+        / (k * world.dt_s)
+    return out
 
 
 class PlanFrame:

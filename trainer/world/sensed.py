@@ -31,7 +31,7 @@ from runtime.conditions import Conditions
 from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
-from runtime.decision.rules import plan_targets
+from runtime.decision.rules import plan_targets, plan_velocity
 from runtime.decision.settle import CENTROID_FRAME, settle_for
 from runtime.types import Array, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -102,7 +102,7 @@ class SensedRows:
                 G[land], K[land] = plan_targets(P[land], C[land], slots[land], CENTROID_FRAME,
                                                 self.world)
             # each robot's plan for its whole team: peers out of view go along it next step
-            self._follow = (G - P) / (K * self.world.dt_s)[:, None, None]
+            self._follow = plan_velocity(G, P, K, self.world)
         else:
             G = np.take_along_axis(Cc, slots[..., None], axis=1) + P.mean(axis=1, keepdims=True)
         obs = general_observation(P, P - V * self.world.dt_s, G, self.spec.k_neighbours,
