@@ -79,11 +79,22 @@ class Controller:
         self._row: NDArray[Any] = np.zeros((1, 1, self._rows.dim))  # a brain's own input
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
-        self.team_velocity: Array | None = None
+        self._team_plan: tuple[Array, Array, float] | Array | None = None
+        """The last decision's plan for the team: (targets, positions, steps left), or the
+        team rule's velocities; None without a plan (see :attr:`team_velocity`)."""
+        self.reset()
+
+    @property
+    def team_velocity(self) -> Array | None:
         """(n, 2) m/s: every robot's velocity under the synchronised plan this robot computed
         in its last decision (None: its brain has no plan); a robot that cannot see every
-        peer carries the unseen ones along it (:class:`runtime.decision.estimator.PeerTracker`)."""
-        self.reset()
+        peer carries the unseen ones along it (:class:`runtime.decision.estimator.PeerTracker`).
+        Worked out when asked: a decision only keeps what it is made from."""
+        plan = self._team_plan
+        if plan is None or not isinstance(plan, tuple):
+            return plan
+        target, pos, k = plan
+        return plan_velocity(target, pos, k, self.world)
 
     # ---------------------------------------------------------------- state
 
@@ -174,7 +185,7 @@ class Controller:
             if self._lander is not None and self._lander.settle.lands_in_centroid(k):
                 tx, ty, k = self._plan.solve_floats(pos, pts, CENTROID_FRAME, self.world)
             qx, qy = pts[i].tolist()
-            self.team_velocity = plan_velocity(pts + np.array([tx, ty]), pos, k, self.world)
+            self._team_plan = (pts + np.array([tx, ty]), pos, k)
             return qx + tx, qy + ty, k
         qx, qy = self._cc[int(slots[i])].tolist()
         return qx + cx, qy + cy, None  # == slot_positions(...)[i]
@@ -190,8 +201,9 @@ class Controller:
             out, k = team(P, c[None], slots[None])
             if self._lander is not None and self._lander.settle.lands_in_centroid(k[0]):
                 out, k = team(P, c[None], slots[None], CENTROID_FRAME)  # landing under noise
-            self.team_velocity = np.array(out[0], dtype=np.float64)
-            vx, vy = self.team_velocity[i].tolist()
+            team_v: Array = np.asarray(out, dtype=np.float64)[0]
+            self._team_plan = team_v
+            vx, vy = team_v[i].tolist()
             return vx, vy, float(k[0])
         if not spec.needs_slots:  # the paper's observation
             obs = observe(spec, self._frames, None, (i,), self.world)
@@ -239,7 +251,7 @@ class Controller:
         brain that raises makes the robot hold still, with ``error`` set.
         """
         t0 = time.perf_counter_ns()
-        self.team_velocity = None
+        self._team_plan = None
         pos = np.array(positions, dtype=np.float64)  # a copy: the history is ours
         if pattern is not self._pattern_obj:
             self._use_pattern(pattern)
