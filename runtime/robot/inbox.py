@@ -105,6 +105,10 @@ class PoseInbox:
         self._arrived: dict[int, float] = {}  # step -> when its batch came (the last few)
         self.batches = 0
         """All-poses messages taken (for status and tests)."""
+        self.per_robot = True
+        """Steps may be made of per-robot poses (before any all-poses message); False while
+        the robot listens to its own pose only (:meth:`runtime.robot.robot.Robot.start`),
+        until :meth:`listen_per_robot`."""
         # the loop's, under cond
         self._last_decided = -1
         self._next_tick = time.monotonic()
@@ -148,6 +152,13 @@ class PoseInbox:
             if self._own_ticks and rid == self.id:
                 self._next_tick = now  # decide on this pose now
                 self.cond.notify()
+
+    def listen_per_robot(self) -> None:
+        """Every robot's per-robot pose is listened to from now on: steps are made of them,
+        from the next step on (the one heard meanwhile lacks the poses sent before)."""
+        with self.cond:
+            self.per_robot = True
+            self._last_decided = max(self._last_decided, self._col_step)
 
     def take_batch(self, payload: bytes, notify: bool = True) -> bool:
         """An all-poses sample: kept as the step to decide, or dropped (counted) when malformed.
@@ -233,7 +244,8 @@ class PoseInbox:
             step = None
             if not holding:
                 step = self._ready_batch()
-            if step is None and not holding and self._batch_step < 0:  # per-robot poses only
+            if (step is None and not holding and self._batch_step < 0
+                    and self.per_robot):  # per-robot poses only
                 step = self._ready_realtime(now) if self.realtime else self._ready_lockstep(now)
             if step is not None:
                 self._last_decided = step.step

@@ -94,6 +94,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 import zenoh
 
+from runtime import heap
 from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
 from runtime.decision.controller import Controller
@@ -220,6 +221,7 @@ class Robot:
         self.backlog_skipped = 0
         """realtime: all-poses messages left undecided because they waited behind another."""
         self._pose_sub: zenoh.Subscriber[None] | None = None
+        self._pose_keys_wanted = False  # set by _on_own_pose, taken by the loop
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
         self._ros2: Ros2Link | None = None  # --ros2: the pose from ROS 2, the command to it
         self._view_pub: zenoh.Publisher | None = None  # under imperfect sensing (--view-every)
@@ -242,8 +244,14 @@ class Robot:
                 s.declare_publisher(keys.view_key(sw, self.id), express=True)
             )
         z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
-        # per-robot poses until the first all-poses message (then undeclared: O(1) a step)
-        self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
+        # per-robot poses until the first all-poses message (then undeclared). In realtime
+        # its own only: a world without all-poses messages shows itself there, and every
+        # robot's key is then listened to (:meth:`_on_own_pose`), from the next step on
+        if self._in_flight is not None and self.cfg.ros2 is None:  # realtime: no step waits
+            self.inbox.per_robot = False
+            self._pose_sub = s.declare_subscriber(keys.pose_key(sw, self.id), self._on_own_pose)
+        else:  # lockstep: the world waits for its first step; ROS 2: peers publish their own
+            self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
         z.callback(self._drop_pose_keys)
         z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
         z.enter_context(s.declare_subscriber(keys.operator_pattern_key(sw),
@@ -281,6 +289,28 @@ class Robot:
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
         self.inbox.take(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _on_own_pose(self, sample: zenoh.Sample) -> None:
+        """This robot's per-robot pose. A world that sends all poses in one message sends
+        it before the per-robot ones: heard first without any, every robot's pose key is
+        listened to (by the loop, :meth:`_listen_to_pose_keys`). Listening to them from the
+        start cost a hundred-robot swarm ten thousand messages a step until the robots
+        undeclared them, and its first steps were late."""
+        self._on_pose(sample)
+        if not self.inbox.batches and not self._pose_keys_wanted:
+            self._pose_keys_wanted = True
+            self.inbox.wake()
+
+    def _listen_to_pose_keys(self) -> None:
+        """Every robot's per-robot pose instead of this robot's own (loop only)."""
+        self._pose_keys_wanted = False
+        if self._pose_sub is None or self.inbox.batches:
+            return
+        self._drop_pose_keys()
+        self._pose_sub = self.session.declare_subscriber(keys.all_poses(self.cfg.swarm),
+                                                         self._on_pose)
+        self.inbox.listen_per_robot()
+        self.log("debug", "poses", "no all-poses message: listening to every robot's pose")
 
     def _drop_pose_keys(self) -> None:
         sub, self._pose_sub = self._pose_sub, None
@@ -360,6 +390,8 @@ class Robot:
                     self.stats.new_period()
                     next_status = now + period
                 code = self._watch(now)
+                if self._pose_keys_wanted:
+                    self._listen_to_pose_keys()
             if code is not None:
                 return code
             wake_by = min(next_status, now + IDLE_WAKE_S)
@@ -610,6 +642,7 @@ def run(args: argparse.Namespace) -> int:
             if stop.is_set():
                 return 0
             robot.start()
+            heap.settle()
             log(
                 "info",
                 "start",

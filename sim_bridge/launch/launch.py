@@ -66,6 +66,7 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
+from runtime import heap
 from runtime.brain.signing import run_operator_key
 from runtime.decision.patterns import pattern_label
 from runtime.errors import InputError
@@ -408,6 +409,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         sys.setswitchinterval(WORLD_SWITCH_INTERVAL_S)
         world = SimWorld(cfg, session, rec, on_progress=progress.update, log=say)
+        heap.settle()
         robots = Robots()
         interrupted = threading.Event()
 

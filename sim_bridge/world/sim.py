@@ -45,6 +45,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
+from runtime import heap
 from runtime.conditions import parse_conditions
 from runtime.decision.patterns import PatternError, make_pattern
 from runtime.errors import InputError
@@ -238,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     sys.setswitchinterval(WORLD_SWITCH_INTERVAL_S)
     world = SimWorld(cfg, session, rec)
+    heap.settle()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         world.stop()

@@ -19,6 +19,11 @@ The world owns the truth (where every robot is) and the clock. Each step it
      its period, down to ``min_rate_hz``, and speeds up again as they catch up
      (below :data:`HELD_SPEED_UP`): a swarm too big for its machine runs slower,
      not frozen (each step's rate is on ``/world/metrics``);
+   * in both modes a step that brings news -- the run's first, each pattern's first, the
+     first after a join -- waits for every robot's command (up to
+     ``first_step_deadline_ms``), and realtime's schedule starts again after it: the
+     robots decide it from scratch, all at once; the phase's lower bounds are worked
+     out meanwhile (:meth:`SimWorld._bounds`);
 
    a robot whose command for the step is missing or late (a deadline miss) moves on
    its newest command if that is at most ``max_command_age_steps`` steps old
@@ -66,6 +71,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from runtime import heap
 from runtime.conditions import PERFECT, Conditions
 from runtime.decision.formation import lower_bounds
 from runtime.decision.kinematics import Wheels
@@ -154,13 +160,15 @@ class _Phase:
     C: Array
     """The pattern at the live team size, (n, 2) metres."""
     choice: BrainChoice | None
-    lower_bound_steps: int
-    lower_bound_travel_m: float
-    limit: int
-    """The phase's step limit."""
+    start_pos: Array
+    """Where the team was when the pattern came, (n, 2) metres: the lower bounds' start."""
     start_step: int
     late0: int
     t_start: float
+    lower_bound_steps: int = -1
+    lower_bound_travel_m: float = math.nan
+    limit: int | None = None
+    """The phase's step limit (None until the lower bounds are known)."""
     steps: int = 0
     tally: PhaseTally = field(default_factory=PhaseTally)
     brain_ids: set[str] = field(default_factory=set)
@@ -229,8 +237,12 @@ class SimWorld:
         self.stepping_wall_s = 0.0
         self.stepping_cpu_s = 0.0
         self.cpu_split_s = dict.fromkeys(CPU_SECTIONS, 0.0)
-        self._process_cpu0 = time.process_time()
         """CPU of the world's thread in steps, by what it spent it on (:data:`CPU_SECTIONS`)."""
+        self._process_cpu0 = time.process_time()
+        self.bounds_cpu_s = 0.0  # the phases' lower bounds (in their first steps: measures)
+        self.gc_pauses = heap.Pauses()
+        """The collector's pauses of the world's process while the patterns played (every
+        thread waits for them: Zenoh's callbacks, the recorder's writer)."""
         self._tick: float | None = None  # realtime: when the current step's period began
         self.period_s = 1.0 / cfg.rate_hz
         """realtime: the current period (longer than 1 / rate_hz while robots cannot keep up)."""
@@ -331,6 +343,7 @@ class SimWorld:
             "writer_cpu_s": round(self.rec.writer_cpu_s, 3) if self.rec is not None else 0.0,
             "process_cpu_s": (round(time.process_time() - self._process_cpu0, 3) if played
                               else 0.0),
+            "gc_pauses": self.gc_pauses.figures(),
         }
 
     def _play(self, phases: list[PhaseResult]) -> str:
@@ -338,13 +351,14 @@ class SimWorld:
         self._process_cpu0 = time.process_time()  # the process's CPU from here: stepping on
         self.members.place_start(self.cfg.robots)
         outcome = "done"
-        for k, name in enumerate(self.cfg.patterns):
-            if self.stop_event.is_set():
-                break
-            phases.append(self._run_phase(k, name))
-            if len(self.physics.ids) < 2:
-                outcome = "no robots"
-                break
+        with self.gc_pauses:
+            for k, name in enumerate(self.cfg.patterns):
+                if self.stop_event.is_set():
+                    break
+                phases.append(self._run_phase(k, name))
+                if len(self.physics.ids) < 2:
+                    outcome = "no robots"
+                    break
         return "interrupted" if self.stop_event.is_set() else outcome
 
     # ------------------------------------------------------------------ phases
@@ -357,13 +371,13 @@ class SimWorld:
             if ph.first is None and ph.tally.formed(self.w):  # the first passage
                 ph.first = (ph.steps, ph.tally.travel_m, ph.tally.error_m)
             done = (ph.hold_done >= self.cfg.hold_steps if ph.first is not None
-                    else ph.steps >= ph.limit)
+                    else ph.limit is not None and ph.steps >= ph.limit)
             if done or self.stop_event.is_set():
                 break
             joined = self._follow_membership(ph)
             if joined is None:
                 break
-            if not self._step(ph, first=self.step == 0 or joined > 0):
+            if not self._step(ph, first=self.step == 0 or ph.steps == 0 or joined > 0):
                 break
             if ph.first is not None:
                 ph.hold_done += 1
@@ -371,7 +385,7 @@ class SimWorld:
         return self._end_phase(ph)
 
     def _start_phase(self, index: int, name: str) -> _Phase:
-        cfg, w = self.cfg, self.w
+        cfg = self.cfg
         t_start = time.monotonic()
         choice = cfg.brains.get(name) if cfg.brains else None
         if choice is not None:
@@ -379,18 +393,30 @@ class SimWorld:
                           cfg.swap_timeout_s)
         C = self._publish_pattern(name, "phase")
         pos = self.physics.positions()
-        lb_travel, lb_steps = lower_bounds(pos, C, w.v_max_mps, w.dt_s)
-        n = len(self.physics.ids)
-        self.journal.event("phase_start", phase=index, pattern=pattern_label(name), n=n,
-                           lower_bound_steps=lb_steps, lower_bound_travel_m=round(lb_travel, 6),
-                           brain=choice.label if choice else "robots' own")
-        self.journal.say(f"pattern {index + 1}/{len(cfg.patterns)}: {pattern_label(name)} with "
-                         f"{n} robots (lower bound {lb_steps} steps)", True)
-        limit = cfg.max_steps if cfg.max_steps is not None else phase_step_limit(lb_steps)
-        ph = _Phase(index, name, C, choice, lb_steps, lb_travel, limit, self.step,
-                    self.link.late, t_start)
+        ph = _Phase(index, name, C, choice, pos, self.step, self.link.late, t_start)
         ph.tally.start(pos, C)
         return ph
+
+    def _bounds(self, ph: _Phase) -> None:
+        """The phase's lower bounds (its step limit with them) and its ``phase_start`` event.
+
+        Worked out during the phase's first step, while the robots take the new pattern
+        (that step waits for all of them: :meth:`_deadline_s`): a hundred robots or more
+        took a few tenths of a second to solve them, which the whole swarm waited for."""
+        if ph.limit is not None:
+            return
+        cfg, w = self.cfg, self.w
+        cpu = time.thread_time()
+        lb_travel, lb_steps = lower_bounds(ph.start_pos, ph.C, w.v_max_mps, w.dt_s)
+        ph.lower_bound_travel_m, ph.lower_bound_steps = lb_travel, lb_steps
+        ph.limit = cfg.max_steps if cfg.max_steps is not None else phase_step_limit(lb_steps)
+        self.bounds_cpu_s += time.thread_time() - cpu
+        self.journal.event("phase_start", phase=ph.index, pattern=ph.label,
+                           n=len(ph.start_pos), lower_bound_steps=lb_steps,
+                           lower_bound_travel_m=round(lb_travel, 6),
+                           brain=ph.choice.label if ph.choice else "robots' own")
+        self.journal.say(f"pattern {ph.index + 1}/{len(cfg.patterns)}: {ph.label} with "
+                         f"{len(ph.start_pos)} robots (lower bound {lb_steps} steps)", True)
 
     def _follow_membership(self, ph: _Phase) -> int | None:
         """Apply joins and leaves (resizing the pattern): robots joined; None when < 2 left."""
@@ -424,9 +450,14 @@ class SimWorld:
         pos = self.physics.positions()
         t_step = time.monotonic()
         cpu = _Stopwatch(self.cpu_split_s)
-        v, missed, age = self.link.exchange(self.step, self.w.dt_s, ids, pos,
-                                            self._deadline_s(first), self.stop_event)
+        bounds0 = self.bounds_cpu_s
+        v, missed, age = self.link.exchange(
+            self.step, self.w.dt_s, ids, pos, self._deadline_s(first), self.stop_event,
+            wait_all=first, meanwhile=None if ph.limit is not None else lambda: self._bounds(ph))
+        bounds = self.bounds_cpu_s - bounds0
         cpu.lap("exchange")
+        self.cpu_split_s["exchange"] -= bounds  # the bounds are a measure
+        self.cpu_split_s["measures"] += bounds
         if self.stop_event.is_set():
             return False
         v = self._wheels(ids, v)  # what the wheels make of the commands, then the guard
@@ -472,7 +503,14 @@ class SimWorld:
             self.period_s = max(self.period_s / SPEED_UP, 1.0 / cfg.rate_hz)
 
     def _deadline_s(self, first: bool) -> float:
-        """How long a step waits for commands: longer at the start and after a join."""
+        """How long a step waits for commands. A step that brings news -- the run's first, a
+        pattern's first, the first after a join -- waits for every robot's command up to
+        ``first_step_deadline_ms`` in both modes: robots decide their first step of a team
+        or pattern from scratch (no warm start, cold caches), a hundred of them at once on
+        two cores take a few periods, and in realtime the clock starts again after it."""
+        if first:
+            self._tick = None  # realtime: the schedule starts from the end of this step
+            return self.cfg.first_step_deadline_ms / 1000.0
         if self.cfg.mode != "lockstep":  # to the step's tick, on a fixed schedule
             period = self.period_s
             now = time.monotonic()
@@ -482,10 +520,10 @@ class SimWorld:
                 self._tick = now  # behind by a whole period (or the first step): start again
             self._tick += period
             return max(0.0, self._tick - now)
-        ms = self.cfg.first_step_deadline_ms if first else self.cfg.step_deadline_ms
-        return ms / 1000.0
+        return self.cfg.step_deadline_ms / 1000.0
 
     def _end_phase(self, ph: _Phase) -> PhaseResult:
+        self._bounds(ph)  # a phase that ended before its first step
         t = ph.tally
         seen = sorted(b for b in ph.brain_ids if b)
         formed = ph.first is not None
@@ -494,7 +532,7 @@ class SimWorld:
         hold = self.cfg.hold_steps
         result = PhaseResult(
             index=ph.index, pattern=ph.label, n_robots=len(self.physics.ids),
-            formed=formed, steps=steps, step_limit=ph.limit,
+            formed=formed, steps=steps, step_limit=int(ph.limit or 0),
             lower_bound_steps=int(ph.lower_bound_steps), travel_m=round(travel_m, 6),
             lower_bound_travel_m=round(ph.lower_bound_travel_m, 6), collisions=t.collisions,
             contacts=t.contacts,

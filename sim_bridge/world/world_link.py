@@ -134,6 +134,7 @@ class WorldLink:
         self.roster = Roster(self.cond)
         self.late = 0
         self._collect_step = -1
+        self._wait_all = self.lockstep  # this exchange ends when every robot has answered
         self._expect: set[int] = set()
         self._cmds: dict[int, Command] = {}
         self._cmd_t: dict[int, float] = {}
@@ -300,7 +301,7 @@ class WorldLink:
                     self._cmds[rid] = cmd
                     self._cmd_t[rid] = now
                     self.decision_us.append(cmd.decision_us)
-                    if self.lockstep and self._all_in():
+                    if self._wait_all and self._all_in():
                         self.cond.notify_all()
             elif cmd.step < self._collect_step or (
                     self._collect_step < 0 and cmd.step <= self._last_step):  # too late: unused
@@ -422,18 +423,22 @@ class WorldLink:
 
     def exchange(
         self, step: int, dt_s: float, ids: list[int], pos: Array, deadline_s: float,
-        stop: threading.Event,
+        stop: threading.Event, wait_all: bool = False,
+        meanwhile: Callable[[], None] | None = None,
     ) -> Collected:
         """Publish the poses of ``step``, collect its commands.
 
-        Waits until every live robot answered (``lockstep``) or ``deadline_s``
-        seconds passed (``realtime``: always the full ``deadline_s``, the time to
-        the step's tick). Returns the velocities to apply in ``ids`` order, the
-        robots without a fresh command and each command's age (:class:`Collected`).
+        Waits until every live robot answered (``lockstep``, or ``wait_all``) or
+        ``deadline_s`` seconds passed (``realtime``: otherwise always the full
+        ``deadline_s``, the time to the step's tick). ``meanwhile``: the world's own work,
+        done once the poses are out (the commands are collected all the same). Returns the
+        velocities to apply in ``ids`` order, the robots without a fresh command and each
+        command's age (:class:`Collected`).
         """
         with self.cond:
             self._exchanges += 1
             self._collect_step = step
+            self._wait_all = self.lockstep or wait_all
             n = self._exchanges
             self._expect = {r for r in ids
                             if n - self._spoke_at.get(r, -SILENT_STEPS) <= SILENT_STEPS}
@@ -443,10 +448,12 @@ class WorldLink:
             self._cmd_t = {}
         t0 = time.monotonic()
         self.publish_poses(step, dt_s, ids, pos)
+        if meanwhile is not None:
+            meanwhile()
         deadline = t0 + deadline_s
         with self.cond:
             while not stop.is_set():
-                if self.lockstep and self._all_in():
+                if self._wait_all and self._all_in():
                     break
                 left = deadline - time.monotonic()
                 if left <= 0:

@@ -481,3 +481,44 @@ def test_a_robot_started_by_hand_leaves_when_its_world_is_gone(
     lines = [ln for ln in err.splitlines() if "world is gone" in ln]
     assert len(lines) == 1 and "--world-timeout-s 1" in lines[0]
     assert "Traceback" not in err
+
+
+def test_a_realtime_robot_listens_to_its_own_pose_key_until_all_poses_come(
+    world: StubWorld, robots: list[RobotProc]
+) -> None:
+    """A hundred robots each listening to every robot's pose key until their first all-poses
+    message cost the swarm ten thousand messages a step: a realtime robot listens to its own
+    key only (a world of per-robot poses shows itself there), and to none once all-poses
+    messages come."""
+    world.batches = True
+    matched = {0: threading.Event(), 5: threading.Event()}
+    dropped = threading.Event()
+    listeners = []
+    for rid in matched:
+        pub = world.session.declare_publisher(keys.pose_key(world.swarm, rid))
+
+        def on_match(status: object, rid: int = rid) -> None:
+            if getattr(status, "matching", False):
+                matched[rid].set()
+            elif rid == 0 and matched[0].is_set():
+                dropped.set()
+
+        listeners.append((pub, pub.declare_matching_listener(on_match)))
+    try:
+        robots.append(RobotProc(world, 0, RULE_ASSIGN, "--mode", "realtime", "--pattern",
+                                "line", "--safety", "off"))
+        world.wait_alive({0}, 30.0)
+        world.wait_status(0, lambda s: True, 10.0, "first status")
+        assert matched[0].wait(30.0), "the robot never listened to its own pose key"
+        pos = np.array([[0.0, 0.0], [2.0, 0.5]])
+        for step in range(100):  # bounded: the key is dropped after the first decision
+            world.publish_poses(step, pos, [0, 5])
+            world.wait_cmds(step, [0])
+            if dropped.wait(0.05):
+                break
+        assert dropped.is_set(), "its own pose key still listened to after all-poses messages"
+        assert not matched[5].is_set(), "a peer's pose key was listened to"
+    finally:
+        for pub, listener in listeners:
+            listener.undeclare()
+            pub.undeclare()

@@ -135,6 +135,49 @@ def test_world_link_exchanges_a_step_with_a_robot() -> None:
         world.close()  # type: ignore[no-untyped-call]
 
 
+@pytest.mark.timeout(120)
+def test_a_realtime_step_that_brings_news_waits_for_every_command_and_does_its_work_meanwhile(
+) -> None:
+    """The run's first step, a pattern's first and the first after a join wait for every
+    robot's command (a realtime step otherwise waits its whole period); the world's own work
+    of that step (the phase's lower bounds) runs once the poses are out, while the robots
+    decide, and the commands that come meanwhile count."""
+    swarm, port = "unit-news", free_port()
+    world = open_session("peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])
+    robot = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"], listen=[])
+    link = WorldLink(world, swarm, lockstep=False, recorder=None, event=lambda kind, **f: None)
+    stop = threading.Event()
+    answered = threading.Event()
+
+    def answer(sample: Any) -> None:
+        pose = decode_poses(sample.payload.to_bytes())
+        robot.put(keys.cmd_key(swarm, 1), encode_command(
+            Command(1, pose.step, 0.1, 0.2, "rule:assign", False, 0.0, 12.0)))
+        answered.set()
+
+    def meanwhile() -> None:  # the world's work outlasts the robot's answer
+        assert answered.wait(60.0)
+
+    try:
+        with link:
+            link.open()
+            sub = robot.declare_subscriber(keys.poses_key(swarm), answer)
+            token = robot.liveliness().declare_token(keys.alive_key(swarm, 1))
+            assert link.roster.wait_for(1, 20.0, stop) == 1
+            link.add_robot(1, 0.5, 0.5)
+            pos = np.array([[1.0, 2.0]])
+            # a deadline far beyond the test's timeout: only the answer can end the wait
+            v, missed, age = link.exchange(0, W.dt_s, [1], pos, 3600.0, stop, wait_all=True,
+                                           meanwhile=meanwhile)
+            assert answered.is_set()
+            assert missed == [] and v.tolist() == [[0.1, 0.2]] and age.tolist() == [0]
+            token.undeclare()
+            sub.undeclare()
+    finally:
+        robot.close()  # type: ignore[no-untyped-call]
+        world.close()  # type: ignore[no-untyped-call]
+
+
 def test_the_worlds_next_pattern_is_numbered_above_an_operators() -> None:
     """An operator's pattern at the edge of what robots take: the world's next phase is
     numbered above it (so it wins at every robot), never more than MAX_VERSION_STEP past
