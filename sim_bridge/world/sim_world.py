@@ -19,8 +19,8 @@ The world owns the truth (where every robot is) and the clock. Each step it
      its period, down to ``min_rate_hz``, and speeds up again as they catch up
      (below :data:`HELD_SPEED_UP`): a swarm too big for its machine runs slower,
      not frozen (each step's rate is on ``/world/metrics``);
-   * in both modes a step that brings news -- the run's first, each pattern's first, the
-     first after a join -- waits for every robot's command (up to
+   * in both modes a step that brings news -- the run's first few (:data:`WARM_UP_STEPS`),
+     each pattern's first, the first after a join -- waits for every robot's command (up to
      ``first_step_deadline_ms``), and realtime's schedule starts again after it: the
      robots decide it from scratch, all at once; the phase's lower bounds are worked
      out meanwhile (:meth:`SimWorld._bounds`);
@@ -99,6 +99,17 @@ HELD_AVERAGING = 0.2
 """Weight of a step in the average of the held share."""
 SLOW_DOWN, SPEED_UP = 1.1, 1.02
 """Factors on the period per step: slow down fast, speed up gently."""
+MIN_WINDOW_SHARE = 0.9
+"""realtime: a step's robots have at least this share of the period between its poses going
+out and its deadline. The schedule is fixed (the world's own work of a step comes out of
+the next period), but when the world's poses go out late -- the machine stalled the world
+and the robots alike for tens of ms -- the schedule slips rather than squeeze the next step:
+squeezed, that step's window fell below the robots' round trip and every command of a
+hundred-robot swarm came late at once (the slip is reported: ``schedule_slipped_s``)."""
+WARM_UP_STEPS = 3
+"""The run's first steps that wait for every robot's command, as a pattern's first does
+(:meth:`SimWorld._deadline_s`): a hundred robots just started took 1.1-1.4 s over their first
+decision and 150 ms over each of the next two (a steady step: 55-70 ms), cold."""
 STEP_LIMIT_OVER_BOUND = 2
 """Without ``--max-steps``, a pattern gets this many times its steps lower bound (at least
 the world's ``step_limit``): a hundred robots in the arena of four patterns start up to
@@ -248,6 +259,8 @@ class SimWorld:
         """realtime: the current period (longer than 1 / rate_hz while robots cannot keep up)."""
         self._held_avg = 0.0
         self.overruns = 0
+        self.slipped_s = 0.0
+        """realtime: how far the schedule slipped to keep each step's window (MIN_WINDOW_SHARE)."""
         self._wheel_ids: list[int] = []
         self._wheel_model: Wheels | None = None
         """realtime: steps whose tick had passed before their poses went out."""
@@ -338,6 +351,7 @@ class SimWorld:
         played = self.step > 0
         return {
             "steps": self.step, "overruns": self.overruns,
+            "schedule_slipped_s": round(self.slipped_s, 3),
             "stepping_cpu_s": round(self.stepping_cpu_s, 4),
             "stepping_cpu_split_s": {k: round(v, 4) for k, v in self.cpu_split_s.items()},
             "writer_cpu_s": round(self.rec.writer_cpu_s, 3) if self.rec is not None else 0.0,
@@ -377,7 +391,8 @@ class SimWorld:
             joined = self._follow_membership(ph)
             if joined is None:
                 break
-            if not self._step(ph, first=self.step == 0 or ph.steps == 0 or joined > 0):
+            if not self._step(ph, first=(self.step < WARM_UP_STEPS or ph.steps == 0
+                                         or joined > 0)):
                 break
             if ph.first is not None:
                 ph.hold_done += 1
@@ -503,8 +518,8 @@ class SimWorld:
             self.period_s = max(self.period_s / SPEED_UP, 1.0 / cfg.rate_hz)
 
     def _deadline_s(self, first: bool) -> float:
-        """How long a step waits for commands. A step that brings news -- the run's first, a
-        pattern's first, the first after a join -- waits for every robot's command up to
+        """How long a step waits for commands. A step that brings news -- the run's first
+        few, a pattern's first, the first after a join -- waits for every robot's command up to
         ``first_step_deadline_ms`` in both modes: robots decide their first step of a team
         or pattern from scratch (no warm start, cold caches), a hundred of them at once on
         two cores take a few periods, and in realtime the clock starts again after it."""
@@ -519,7 +534,11 @@ class SimWorld:
                     self.overruns += 1
                 self._tick = now  # behind by a whole period (or the first step): start again
             self._tick += period
-            return max(0.0, self._tick - now)
+            window = MIN_WINDOW_SHARE * period
+            if self._tick - now < window:  # the poses go out late: slip, do not squeeze
+                self.slipped_s += window - (self._tick - now)
+                self._tick = now + window
+            return self._tick - now
         return self.cfg.step_deadline_ms / 1000.0
 
     def _end_phase(self, ph: _Phase) -> PhaseResult:

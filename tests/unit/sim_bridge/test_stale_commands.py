@@ -180,3 +180,31 @@ def test_a_realtime_world_slows_down_while_its_robots_cannot_keep_up() -> None:
     for _ in range(60):
         fixed._adapt_rate(1.0)
     assert fixed.period_s == pytest.approx(0.1)
+
+
+def test_a_realtime_schedule_slips_rather_than_squeeze_a_step_and_news_restarts_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """On schedule, a step's window is what is left of its period; poses that go out late
+    (the machine stalled the world) slip the schedule so the robots keep
+    MIN_WINDOW_SHARE of a period; a step that brings news waits up to the first-step
+    deadline and the schedule starts again after it. The clock is the test's."""
+    from sim_bridge.world import sim_world
+    from sim_bridge.world.sim_world import MIN_WINDOW_SHARE, SimConfig, SimWorld
+
+    clock = [100.0]
+    monkeypatch.setattr(sim_world.time, "monotonic", lambda: clock[0])
+    world = SimWorld(SimConfig(mode="realtime", robots=4, patterns=["circle"],
+                               first_step_deadline_ms=5000.0), None)  # type: ignore[arg-type]
+    assert world._deadline_s(True) == pytest.approx(5.0)  # news: wait for everyone
+    clock[0] += 0.3  # the news step took what it took
+    assert world._deadline_s(False) == pytest.approx(0.1)  # the schedule starts again here
+    clock[0] += 0.105  # 5 ms of the world's own work after the tick
+    assert world._deadline_s(False) == pytest.approx(0.095)  # taken out of the next period
+    assert world.slipped_s == 0.0
+    clock[0] += 0.095 + 0.04  # a 40 ms stall after the tick
+    assert world._deadline_s(False) == pytest.approx(MIN_WINDOW_SHARE * 0.1)
+    assert world.slipped_s == pytest.approx(0.04 - (1 - MIN_WINDOW_SHARE) * 0.1)
+    clock[0] += MIN_WINDOW_SHARE * 0.1 + 0.002  # back on the slipped schedule
+    assert world._deadline_s(False) == pytest.approx(0.098)
+    assert world.overruns == 0
