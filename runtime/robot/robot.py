@@ -253,9 +253,12 @@ class Robot:
         else:  # lockstep: the world waits for its first step; ROS 2: peers publish their own
             self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
         z.callback(self._drop_pose_keys)
-        z.enter_context(s.declare_subscriber(keys.pattern_key(sw), self._on_pattern))
+        # patterns on the receiving thread too: a pattern the world sends just before a
+        # step's poses is taken before that step is decided (handed to another thread, it
+        # raced them, and the step was decided on the old pattern or none)
+        z.enter_context(s.declare_subscriber(keys.pattern_key(sw), direct(self._on_pattern)))
         z.enter_context(s.declare_subscriber(keys.operator_pattern_key(sw),
-                                             self._on_operator_pattern))
+                                             direct(self._on_operator_pattern)))
         z.enter_context(s.declare_subscriber(keys.brain_key(sw), self._on_brain))
         z.enter_context(s.liveliness().declare_token(keys.alive_key(sw, self.id)))
         self.swaps.start()

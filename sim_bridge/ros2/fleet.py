@@ -275,14 +275,21 @@ class Ros2FleetLink(WorldLink):
 
     def exchange(
         self, step: int, dt_s: float, ids: list[int], pos: Array, deadline_s: float,
-        stop: threading.Event,
+        stop: threading.Event, wait_all: bool = False,
+        meanwhile: Callable[[], None] | None = None,
     ) -> Collected:
         """Odom out, then at the step's tick the newest Twist of each base: its velocity (age
-        0; a base without a Twist in time holds still, age -1)."""
+        0; a base without a Twist in time holds still, age -1). A Twist answers no step, so
+        there is nothing to wait for all of: ``wait_all`` waits one step (``dt_s``) at most;
+        ``meanwhile`` runs once the odometry is out."""
         with self.cond:
             self._exchanges += 1
         t0 = time.monotonic()
+        if wait_all:
+            deadline_s = min(deadline_s, dt_s)
         self.publish_poses(step, dt_s, ids, pos)
+        if meanwhile is not None:
+            meanwhile()
         stop.wait(max(0.0, t0 + deadline_s - time.monotonic()))
         v, missed, applied = self.bases.velocities(ids, dt_s, CMD_TIMEOUT_S)
         if self.rec is not None:
