@@ -25,6 +25,7 @@ from runtime.wire import keys
 from runtime.wire.messages import MessageError, decode_pose
 from sim_bridge.launch.swarm_keys import create_swarm_keys
 from sim_bridge.log.reader import read_log
+from sim_bridge.world.sim_world import WARM_UP_STEPS
 
 ROBOTS = 3
 PORT = 7447
@@ -139,9 +140,9 @@ def test_link_cut_for_2_s_and_restored(net: Net, swarm: tuple[str, Path],
                  "the watcher to see the world", poll=0.05)
         assert world.poll() is None, net.log("world")[-3000:]
         start_robots(net, r, name, keys_dir, "-e", f"tls/10.231.1.1:{PORT}")
-        # cut as soon as the run moves: a 3-robot circle needs tens of steps, a few at most
-        # have gone by
-        wait_for(lambda: watcher.step >= 1 or world.poll() is not None, 120,
+        # cut as soon as the run's first steps (which wait for every robot) are done: a
+        # 3-robot circle needs tens of steps, a few at most have gone by
+        wait_for(lambda: watcher.step >= WARM_UP_STEPS or world.poll() is not None, 120,
                  "the world to start stepping", poll=0.01)
         assert world.poll() is None, net.log("world")[-3000:]
         cut_at = watcher.step
