@@ -249,7 +249,8 @@ class Robot:
         # robot's key is then listened to (:meth:`_on_own_pose`), from the next step on
         if self._in_flight is not None and self.cfg.ros2 is None:  # realtime: no step waits
             self.inbox.per_robot = False
-            self._pose_sub = s.declare_subscriber(keys.pose_key(sw, self.id), self._on_own_pose)
+            self._pose_sub = s.declare_subscriber(keys.pose_key(sw, self.id),
+                                                  direct(self._on_own_pose))
         else:  # lockstep: the world waits for its first step; ROS 2: peers publish their own
             self._pose_sub = s.declare_subscriber(keys.all_poses(sw), self._on_pose)
         z.callback(self._drop_pose_keys)
