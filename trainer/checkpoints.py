@@ -31,7 +31,7 @@ from runtime.decision.observation import ObservationSpec
 from runtime.errors import InputError
 from trainer.config import TrainConfig, obs_spec_for
 from trainer.ppo.export import BrainFileError, agent_from_onnx, read_manifest
-from trainer.ppo.networks import Agent
+from trainer.ppo.networks import Agent, with_memory
 from trainer.ppo.update import Optimisers, make_optimisers
 
 VALUE_WARMUP_ITERATIONS = 3
@@ -90,12 +90,12 @@ def start_state(cfg: TrainConfig, spec: ObservationSpec, v_max_mps: float,
                 ck: dict[str, Any] | None, init: str | None) -> TrainState:
     """A fresh run, a resumed one (``ck``), or one fine-tuning ``init``."""
     gen = torch.Generator().manual_seed(cfg.seed)
-    agent = Agent(spec.dim, cfg, v_max_mps)
+    agent = Agent(spec.input_dim, cfg, v_max_mps)
     st = TrainState(agent, make_optimisers(agent, cfg), gen, cfg.kl_coef_init, new_best(agent))
     if ck is not None:
         _resume(st, ck)
     elif init:
-        st.agent = load_init(init, cfg, v_max_mps, spec.dim)
+        st.agent = load_init(init, cfg, v_max_mps, spec.input_dim)
         st.opt = make_optimisers(st.agent, cfg)
         st.fit_decoder = Path(init).suffix == ".onnx"
     # a brain carries no value network: fit a fresh one for a few iterations before the policy
@@ -125,7 +125,7 @@ def save_checkpoint(path: Path, st: TrainState, cfg: TrainConfig, spec: Observat
     torch.save(
         {
             "config": cfg.to_dict(),
-            "obs_dim": spec.dim,
+            "obs_dim": spec.input_dim,
             "observation": spec.to_dict(),
             "agent": st.agent.state_dict(),
             "optimisers": [o.state_dict() if o is not None else None for o in st.opt],
@@ -177,6 +177,11 @@ def load_init(path: str, cfg: TrainConfig, v_max_mps: float, obs_dim: int) -> Ag
         theirs = ck["observation"]
         agent = Agent(int(ck["obs_dim"]), ck_cfg, v_max_mps)
         agent.load_state_dict(ck.get("best_state") or ck["agent"])
+    rows_only = {k: v for k, v in spec.to_dict().items() if k != "frames"}
+    if spec.frames > 1 and theirs == rows_only:
+        # a brain without memory grows one: it starts reading its older rows with zero weights
+        agent = with_memory(agent, spec.frames, cfg.with_(residual=agent.residual), v_max_mps)
+        theirs = spec.to_dict()
     if theirs != spec.to_dict() or agent.obs_dim != obs_dim:
         raise InitError(
             f"{path} reads the observation {theirs}, this run builds {spec.to_dict()} "

@@ -94,6 +94,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="an episode that forms goes on this many steps more, each step still "
                    "formed rewarded, and held-out success asks that it held (>= 90%% of them); "
                    "default 0: episodes end at the first passage")
+    p.add_argument("--memory-frames", type=int,
+                   help="a brain with memory: it reads its own last K rows, newest first, "
+                   "carried in and out of its ONNX graph (general and plan observations; "
+                   "default 1: no memory). With --init of a brain without memory, the brain "
+                   "starts as it was, the weights on its older rows at zero", metavar="K")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
         "--sign-key",
@@ -195,6 +200,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "--lr-decay": ("lr_decay", True if args.lr_decay else None),
         "--conditions": ("conditions", args.conditions),
         "--hold-steps": ("hold_steps", args.hold_steps),
+        "--memory-frames": ("memory_frames", args.memory_frames),
     }
     for flag, (name, value) in options.items():
         if value is not None:

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Literal, get_type_hints
 
 from runtime.conditions import Conditions, parse_conditions
-from runtime.decision.observation import ObservationSpec
+from runtime.decision.observation import MAX_MEMORY_FRAMES, ObservationSpec
 from runtime.errors import InputError
 from trainer.world.reward import RewardConfig
 
@@ -65,6 +65,10 @@ class TrainConfig:
     travel_weight: float = 0.0
     """``plan`` only: where the plan's frame sits, 0 the frame of fewest steps (``rule:frame``),
     1 the team's centroid (``rule:frame-travel``); written into the brain's observation spec."""
+    memory_frames: int = 1
+    """``general`` and ``plan``: the rows the brain reads, its own last ``memory_frames``
+    newest first (runtime.decision.observation, "Memory"); 1: no memory. The exported brain
+    carries the older rows in and out as its ``memory``."""
     train_safety: bool = False
     """Train behind the robots' ORCA safety filter (runtime.decision.safety, its
     defaults): the worlds move each robot by the filtered command, as ``eval``, the world and
@@ -170,6 +174,12 @@ class TrainConfig:
         if self.front_end not in ("auto", "none") and self.obs != "paper":
             raise ValueError(f"the {self.front_end} front end reads the paper observation "
                              "(--obs paper)")
+        if not 1 <= self.memory_frames <= MAX_MEMORY_FRAMES:
+            raise ValueError(f"memory_frames must be in 1..{MAX_MEMORY_FRAMES}, "
+                             f"got {self.memory_frames}")
+        if self.memory_frames > 1 and self.obs == "paper":
+            raise ValueError("the paper observation has its own three frames and no memory "
+                             "(--obs general or plan)")
         if not 0 <= self.hold_steps <= 1000:
             raise ValueError(f"hold_steps must be in 0..1000, got {self.hold_steps}")
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):
@@ -227,8 +237,8 @@ def obs_spec_for(cfg: TrainConfig) -> ObservationSpec:
         return ObservationSpec("paper", n_robots=cfg.n_robots)
     if cfg.obs == "plan":
         return ObservationSpec("plan", k_neighbours=cfg.k_neighbours,
-                               travel_weight=cfg.travel_weight)
-    return ObservationSpec("general", k_neighbours=cfg.k_neighbours)
+                               travel_weight=cfg.travel_weight, frames=cfg.memory_frames)
+    return ObservationSpec("general", k_neighbours=cfg.k_neighbours, frames=cfg.memory_frames)
 
 
 def reward_for(cfg: TrainConfig) -> RewardConfig:

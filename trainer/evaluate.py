@@ -175,7 +175,7 @@ def evaluate_brain(
         hold_steps=hold_steps,
     )
     local = None
-    if estimator or conditions != PERFECT:
+    if estimator or conditions != PERFECT or brain.spec.memory_dim:  # robot by robot
         local = LocalDecisions(brain, episodes, n_robots, conditions, estimator=estimator,
                                safety=safety, seed=seed, world=world, naive=naive)
     E = episodes

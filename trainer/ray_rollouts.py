@@ -35,6 +35,7 @@ from trainer.rollout import (
     RolloutResult,
     collect_rollout,
     env_shares,
+    row_memory,
     stage_world,
     worker_generator,
 )
@@ -99,6 +100,7 @@ class RolloutWorker:
         self.v_max_mps = world.v_max_mps
         self.bw, self.obs = stage_world(cfg, world, pattern, it, stage, share)
         self.gen = worker_generator(cfg, stage, it, worker) if own_noise else None
+        self.rows = row_memory(self.cfg, self.cfg.n_envs, self.bw.obs_dim)
 
     def collect(self, agent: Agent, gen_state: torch.Tensor | None
                 ) -> tuple[RolloutBatch, list[float], list[bool], torch.Tensor | None]:
@@ -108,7 +110,8 @@ class RolloutWorker:
             gen = torch.Generator()
             gen.set_state(gen_state)
         assert gen is not None
-        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps)
+        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps,
+                             self.rows)
         self.obs = ro.obs
         return ro.batch, ro.returns, ro.success, gen.get_state() if gen_state is not None else None
 

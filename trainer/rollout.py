@@ -38,6 +38,7 @@ from runtime.world_config import WorldConfig
 from trainer.config import TrainConfig, obs_spec_for, reward_for
 from trainer.ppo.networks import Agent, gaussian_logprob
 from trainer.ppo.storage import Rollout, RolloutBatch
+from trainer.world.memory import RowMemory
 from trainer.world.training_world import BatchWorld
 
 RESUME_SEED_STRIDE = 7919
@@ -136,27 +137,36 @@ def behind_filter(vel: Array, bw: BatchWorld) -> Array:
     return out
 
 
+def row_memory(cfg: TrainConfig, n_envs: int, dim: int) -> RowMemory:
+    """The run's brain memory for ``n_envs`` worlds (none when ``memory_frames`` is 1)."""
+    return RowMemory(cfg.memory_frames, n_envs, cfg.n_robots, dim)
+
+
 def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfig,
-                    gen: torch.Generator, v_max_mps: float) -> RolloutResult:
+                    gen: torch.Generator, v_max_mps: float,
+                    rows: RowMemory | None = None) -> RolloutResult:
     """Algorithm 1, *play game and update memory*: ``rollout_steps`` steps of every robot.
 
     Actions are sampled from the Gaussian (noise from ``gen``); worlds that finish
     an episode start the next at once; a time-limit cut is bootstrapped with
-    V of the episode's last observation.
+    V of the episode's last observation. ``rows``: a brain with memory's older rows
+    (carried from one rollout to the next); None: a brain without memory.
     """
     E, N, T = cfg.n_envs, cfg.n_robots, cfg.rollout_steps
     mem = Rollout(T, E, N, agent.feature_dim)  # holds what the normaliser reads
+    rows = rows if rows is not None else RowMemory(1, E, N, bw.obs_dim)
     returns: list[float] = []
     success: list[bool] = []
     with torch.no_grad():
         for _ in range(T):
-            front = agent.front_features(torch.from_numpy(obs.reshape(E * N, -1)), N)
+            x = rows.stack(obs)  # the row, then the brain's memory of its older rows
+            front = agent.front_features(torch.from_numpy(x.reshape(E * N, -1)), N)
             e = agent.encoder(agent.normaliser(front))
             mean, std = agent.policy(e)
             value = agent.value(e)
             a = mean + std * torch.randn(mean.shape, generator=gen)
             logp = gaussian_logprob(a, mean, std)
-            base = agent.base_mps(torch.from_numpy(obs.reshape(E * N, -1)))  # 0 unless residual
+            base = agent.base_mps(torch.from_numpy(x.reshape(E * N, -1)))  # 0 unless residual
             vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
             res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
             reward = res.reward.copy()
@@ -164,7 +174,8 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             if ep is not None:
                 trunc = res.truncated[ep.env_ids]
                 if trunc.any():  # bootstrap a time-limit cut with V(last obs)
-                    last = torch.from_numpy(ep.final_obs[trunc].reshape(-1, bw.obs_dim))
+                    final = rows.final(ep.final_obs[trunc], x[ep.env_ids[trunc]])
+                    last = torch.from_numpy(final.reshape(-1, x.shape[-1]))
                     v_last = agent.value(agent.features(last, N)).numpy()
                     reward[ep.env_ids[trunc]] += cfg.gamma * v_last.reshape(-1, N)
                 returns += ep.episode_return.tolist()
@@ -172,8 +183,9 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             mem.add(front.numpy().reshape(E, N, -1), a.numpy().reshape(E, N, 2),
                     mean.numpy().reshape(E, N, 2), std.numpy().reshape(E, N, 2),
                     logp.numpy().reshape(E, N), value.numpy().reshape(E, N), reward, res.done)
+            rows.advance(x, res.done)
             obs = res.obs
-        o_t = torch.from_numpy(obs.reshape(E * N, -1))
+        o_t = torch.from_numpy(rows.stack(obs).reshape(E * N, -1))
         last_values = agent.value(agent.features(o_t, N)).numpy().reshape(E, N)
     batch = mem.batch(last_values, cfg.gamma, cfg.returns, cfg.gae_lambda)
     return RolloutResult(batch, obs, returns, success)
@@ -186,9 +198,11 @@ class InProcessRollouts:
                  ) -> None:
         self.cfg, self.v_max_mps = cfg, world.v_max_mps
         self.bw, self.obs = stage_world(cfg, world, pattern, it, stage)
+        self.rows = row_memory(cfg, cfg.n_envs, self.bw.obs_dim)
 
     def collect(self, agent: Agent, gen: torch.Generator) -> RolloutResult:
-        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps)
+        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps,
+                             self.rows)
         self.obs = ro.obs
         return ro
 
@@ -206,6 +220,7 @@ __all__ = [
     "behind_filter",
     "collect_rollout",
     "env_shares",
+    "row_memory",
     "stage_world",
     "worker_generator",
 ]

@@ -74,6 +74,7 @@ from trainer.rollout import (
     RolloutMode,
     RolloutSource,
     behind_filter,
+    row_memory,
 )
 from trainer.world.training_world import BatchWorld, check_pattern
 
@@ -175,6 +176,7 @@ def evaluate_policy(
         hold_steps=cfg.hold_steps,
     )
     obs = bw.observe()
+    rows = row_memory(cfg, episodes, bw.obs_dim)  # a brain with memory's older rows
     held = np.ones(episodes, bool)
     done = np.zeros(episodes, bool)
     formed = np.zeros(episodes, bool)
@@ -182,9 +184,11 @@ def evaluate_policy(
     collisions = np.zeros(episodes, np.int64)
     error = np.zeros(episodes)
     while not done.all():
-        act = agent.act_team_mps(torch.from_numpy(obs.reshape(-1, bw.obs_dim)), cfg.n_robots)
+        x = rows.stack(obs)
+        act = agent.act_team_mps(torch.from_numpy(x.reshape(-1, x.shape[-1])), cfg.n_robots)
         vel = act.numpy().reshape(episodes, cfg.n_robots, 2)
         res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
+        rows.advance(x, res.done)
         obs = res.obs
         ep = res.episode
         if ep is not None:

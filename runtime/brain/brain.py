@@ -8,7 +8,10 @@ reads), ``manifest`` and ``act(obs) -> velocities``. Two kinds ship here:
     input ``obs`` float32 ``[batch, obs_dim]`` (dynamic batch), output
     ``action`` float32 ``[batch, 2]`` already in m/s (the policy mean), and
     optionally ``std``. The graph holds everything from raw observation to
-    action (normalisation, encoder, policy head).
+    action (normalisation, encoder, policy head). A brain with memory
+    (``spec.frames`` > 1) also takes ``memory`` float32 ``[batch, spec.memory_dim]``
+    and answers ``memory_out`` of the same shape, the state its caller hands back
+    in at the next step (:meth:`OnnxBrain.act_memory`; ``act`` alone starts from zeros).
 
 :class:`RuleBrain` (``rule:assign``)
     Pure numpy on the general observation: drive straight to the slot of the
@@ -102,6 +105,8 @@ RULES: Final = (RULE_ASSIGN, *FRAME_RULES)
 RULE_KEY: Final = "rule"
 """The key of the manifest a swap sends for a rule brain: ``{"rule": "rule:assign"}``."""
 INPUT_NAME: Final = "obs"
+MEMORY_NAME: Final = "memory"
+MEMORY_OUT_NAME: Final = "memory_out"
 ACTION_NAME: Final = "action"
 STD_NAME: Final = "std"
 N_PROBES: Final = 32
@@ -200,10 +205,14 @@ class OnnxBrain:
         self._session = session
         self._outputs = [ACTION_NAME]
         self._one = np.zeros((1, spec.dim), dtype=np.float32)  # the robot's reused input
-        self._feed = {INPUT_NAME: self._one}
+        self._feed: dict[str, NDArray[np.float32]] = {INPUT_NAME: self._one}
+        self.memory_dim = spec.memory_dim
+        """The memory this brain carries in and out (0: none)."""
+        if self.memory_dim:
+            self._feed[MEMORY_NAME] = np.zeros((1, self.memory_dim), dtype=np.float32)
         self._run = self._fast_run(session)
         self._out1 = np.zeros((1, 2), dtype=np.float32)  # act_input's output, bound once
-        self._run_bound = self._bound_run(session)
+        self._run_bound = None if self.memory_dim else self._bound_run(session)
 
     def _fast_run(self, session: ort.InferenceSession) -> Any:
         """``session.run`` without its Python wrapper when the binding allows (~4 us less).
@@ -261,13 +270,27 @@ class OnnxBrain:
             return None
 
     def act(self, obs: NDArray[Any]) -> Array:
+        """The velocities (m/s) for ``obs``; a brain with memory starts from zeros."""
         if obs.shape[0] == 1:
             self._one[0] = obs[0]  # cast in place: no allocation on the robot's path
             feed = self._feed
         else:
             feed = {INPUT_NAME: np.ascontiguousarray(obs, dtype=np.float32)}
+            if self.memory_dim:
+                feed[MEMORY_NAME] = np.zeros((len(obs), self.memory_dim), dtype=np.float32)
         out = self._run(self._outputs, feed)[0]
         return np.asarray(out, dtype=np.float64)
+
+    def act_memory(self, obs: NDArray[Any], memory: NDArray[Any]
+                   ) -> tuple[Array, NDArray[np.float32]]:
+        """(velocities (m, 2) m/s, the next memory (m, memory_dim) float32) for rows ``obs``
+        (m, dim) and the memory they carry (m, memory_dim): a brain with memory's step."""
+        if not self.memory_dim:
+            return self.act(obs), np.zeros((len(obs), 0), dtype=np.float32)
+        feed = {INPUT_NAME: np.ascontiguousarray(obs, dtype=np.float32),
+                MEMORY_NAME: np.ascontiguousarray(memory, dtype=np.float32)}
+        action, nxt = self._run([ACTION_NAME, MEMORY_OUT_NAME], feed)
+        return np.asarray(action, dtype=np.float64), np.asarray(nxt, dtype=np.float32)
 
     @property
     def input_row(self) -> NDArray[np.float32]:
@@ -334,8 +357,12 @@ def _static_dim(d: object) -> int | None:
 def _check_io(session: ort.InferenceSession, spec: ObservationSpec) -> None:
     inputs = session.get_inputs()
     names = [i.name for i in inputs]
-    if names != [INPUT_NAME]:
-        raise BrainError(f"brain inputs are {names}, expected exactly ['{INPUT_NAME}']")
+    want = [INPUT_NAME, MEMORY_NAME] if spec.memory_dim else [INPUT_NAME]
+    if names != want:
+        raise BrainError(f"brain inputs are {names}, but its spec "
+                         f"(frames {spec.frames}) needs exactly {want}")
+    if spec.memory_dim:
+        _check_memory(session, spec.memory_dim)
     inp = inputs[0]
     if inp.type != "tensor(float)":
         raise BrainError(f"brain input '{INPUT_NAME}' is {inp.type}, expected tensor(float)")
@@ -354,7 +381,7 @@ def _check_io(session: ort.InferenceSession, spec: ObservationSpec) -> None:
     outputs = {o.name: o for o in session.get_outputs()}
     if ACTION_NAME not in outputs:
         raise BrainError(f"brain outputs are {sorted(outputs)}, expected '{ACTION_NAME}'")
-    extra = sorted(set(outputs) - {ACTION_NAME, STD_NAME})
+    extra = sorted(set(outputs) - {ACTION_NAME, STD_NAME, MEMORY_OUT_NAME})
     if extra:
         raise BrainError(f"brain has unexpected outputs {extra}")
     act = outputs[ACTION_NAME]
@@ -365,6 +392,21 @@ def _check_io(session: ort.InferenceSession, spec: ObservationSpec) -> None:
         raise BrainError(f"brain output '{ACTION_NAME}' has shape {ashape}, expected [batch, 2]")
 
 
+def _check_memory(session: ort.InferenceSession, memory_dim: int) -> None:
+    """A brain with memory's ``memory`` input and ``memory_out`` output: float32
+    [batch, memory_dim] both, the batch dynamic."""
+    for kind, io in (("input", session.get_inputs()[1]),
+                     ("output", {o.name: o for o in session.get_outputs()}.get(MEMORY_OUT_NAME))):
+        name = MEMORY_NAME if kind == "input" else MEMORY_OUT_NAME
+        if io is None:
+            raise BrainError(f"brain has memory but no output '{MEMORY_OUT_NAME}'")
+        shape = list(io.shape)
+        if (io.type != "tensor(float)" or len(shape) != 2 or _static_dim(shape[0]) is not None
+                or shape[1] != memory_dim):
+            raise BrainError(f"brain {kind} '{name}' is {io.type} {shape}, expected "
+                             f"tensor(float) [batch, {memory_dim}]")
+
+
 def _probe(brain: OnnxBrain, world: WorldConfig) -> None:
     probes = probe_observations(brain.spec, world)
     try:
@@ -372,11 +414,19 @@ def _probe(brain: OnnxBrain, world: WorldConfig) -> None:
         singles = [brain.act(probes[i : i + 1]) for i in range(min(4, len(probes)))]
         for _ in range(WARM_RUNS):
             brain.act(probes[:1])
+        if brain.memory_dim:  # the memory it answers, carried twice
+            k = len(probes)
+            _, mem = brain.act_memory(probes, np.zeros((k, brain.memory_dim), np.float32))
+            batch_m, mem = brain.act_memory(probes, mem)
+            if mem.shape != (k, brain.memory_dim) or not np.isfinite(mem).all():
+                raise BrainError(f"brain answers a memory of shape {list(mem.shape)} or "
+                                 f"non-finite, expected [{k}, {brain.memory_dim}] finite")
+            batch = np.concatenate([batch, batch_m])
     except BrainError:
         raise
     except Exception as e:
         raise BrainError(f"brain failed on probe observations: {error_line(e)}") from None
-    if batch.shape != (len(probes), 2):
+    if batch.shape != ((2 if brain.memory_dim else 1) * len(probes), 2):
         raise BrainError(
             f"brain answered shape {list(batch.shape)} for {len(probes)} probes, "
             f"expected [{len(probes)}, 2]"

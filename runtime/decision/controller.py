@@ -108,6 +108,18 @@ class Controller:
         if brain.spec.needs_slots and brain.spec.dim != self._rows.dim:  # another row width
             self._rows = GeneralRows(brain.spec.k_neighbours, self._reach)
             self._row = np.zeros((1, 1, self._rows.dim))
+        self._forget_memory()  # another brain's memory means nothing to this one
+
+    def _forget_memory(self) -> None:
+        """Zeros for the brain's memory: what it reads at a start (none: no memory)."""
+        m = self._brain.spec.memory_dim
+        self._memory_in = np.zeros((1, m), dtype=np.float32)  # what this step's decision reads
+        self._memory = self._memory_in  # what the last decision answered
+
+    @property
+    def memory(self) -> NDArray[np.float32]:
+        """(1, memory_dim): the memory the last decision answered (zeros at a start)."""
+        return self._memory
 
     def reset(self) -> None:
         """Forget the history: frames, previous assignment, the plan's support."""
@@ -119,6 +131,7 @@ class Controller:
         self._vel: Array = np.zeros((1, 0, 2))  # the team's velocity estimates (m/s)
         self._plan = PlanFrame()
         self._heading = math.nan  # a differential-drive base's, from its own motion (rad)
+        self._forget_memory()
         if self._lander is not None:
             self._lander.reset()
 
@@ -155,11 +168,13 @@ class Controller:
             self._prev_slots = None
             self._assignment = None
             self._vel = np.zeros((1, n, 2))
+            self._forget_memory()
         elif step is not None and step == self._last_step:
             self._frames[0] = pos  # the same step again (realtime): refresh, do not shift
         else:
             f = self._frames
             self._frames = [pos, f[0], f[1]]
+            self._memory_in = self._memory  # a new step reads what the last one answered
         self._last_step = step
 
     # -------------------------------------------------------------- decide
@@ -211,6 +226,11 @@ class Controller:
             return vx, vy, None
         sx, sy, steps_left = self._target(i, P[0], slots, cx, cy)
         pace = 0.0 if steps_left is None else steps_left * self._reach
+        if spec.memory_dim:  # the row and the memory in, the action and the next memory out
+            self._rows.robot_f64(0, i, P, V, sx, sy, pace, self._row)
+            act, self._memory = brain.act_memory(self._row[0], self._memory_in)  # type: ignore[attr-defined]
+            vx, vy = act[0].tolist()
+            return vx, vy, steps_left
         direct: NDArray[np.float32] | None = getattr(brain, "input_row", None)
         if direct is not None:  # onnxruntime reads the row where it is written
             self._rows.robot(0, i, P, V, sx, sy, pace, direct.reshape(1, 1, -1))

@@ -42,6 +42,15 @@ The general and plan rows are built by :class:`runtime.core.general_row.GeneralR
 (one source, compiled at install), for a robot's own row and for a batch alike.
 Velocities are estimated from consecutive frames, as a robot's own sensing
 would do; nothing here needs a message beyond positions.
+
+Memory (``frames`` > 1, general and plan only). A brain with memory reads its own last
+``frames`` rows, newest first: ``[row_t, row_{t-1}, ..., row_{t-frames+1}]``. The robot
+does not keep them: the brain carries them. Its ONNX graph takes the row (``obs``) and
+the older rows (``memory``, ``(frames - 1) * dim`` numbers, zeros at the start) and answers
+the next memory (``memory_out``: ``[row_t, ..., row_{t-frames+2}]``) beside the action; the
+robot hands it back in at its next step (:class:`runtime.decision.controller.Controller`),
+and starts from zeros again on a hot swap, a new team or a reset. The contract is a
+recurrent state: a brain may put any state there, the robot only carries it.
 """
 
 from __future__ import annotations
@@ -67,6 +76,8 @@ SLOT_ROWS = ("general", "plan")
 RobotIndices = Sequence[int] | IntArray
 """Which robots' rows a builder makes: indices into the team's robot axis."""
 PAPER_FRAMES = 3
+MAX_MEMORY_FRAMES = 16
+"""The most rows a brain with memory reads (``ObservationSpec.frames``)."""
 
 
 class ObservationError(InputError):
@@ -82,6 +93,7 @@ class ObservationSpec:
     n_robots: int = 0  # paper: the fixed team size; general: 0 (any)
     k_neighbours: int = 6  # general and plan
     travel_weight: float = 0.0  # plan only: 0 the frame of fewest steps, 1 the centroid's
+    frames: int = 1  # general and plan: the rows the brain reads, newest first (1: no memory)
 
     def __post_init__(self) -> None:
         if self.name not in OBS_NAMES:
@@ -96,6 +108,10 @@ class ObservationSpec:
             raise ObservationError(f"the {self.name} observation needs k_neighbours >= 1")
         if not (math.isfinite(self.travel_weight) and 0.0 <= self.travel_weight <= 1.0):
             raise ObservationError(f"travel_weight must be in [0, 1], got {self.travel_weight}")
+        if not 1 <= self.frames <= MAX_MEMORY_FRAMES:
+            raise ObservationError(f"frames must be in 1..{MAX_MEMORY_FRAMES}, got {self.frames}")
+        if self.frames > 1 and self.name not in SLOT_ROWS:
+            raise ObservationError(f"the {self.name} observation has no memory (frames 1)")
 
     @property
     def dim(self) -> int:
@@ -103,6 +119,16 @@ class ObservationSpec:
         if self.name == "paper":
             return PAPER_FRAMES * (self.n_robots - 1) * 2
         return GENERAL_FIXED + GENERAL_PER_NEIGHBOUR * self.k_neighbours
+
+    @property
+    def input_dim(self) -> int:
+        """What a brain reads in all: its row and its memory (``frames * dim``)."""
+        return self.frames * self.dim
+
+    @property
+    def memory_dim(self) -> int:
+        """Length of the memory a brain carries in and out (0: none): its older rows."""
+        return (self.frames - 1) * self.dim
 
     @property
     def needs_slots(self) -> bool:
@@ -121,6 +147,8 @@ class ObservationSpec:
             d["k_neighbours"] = self.k_neighbours
         if self.name == "plan":
             d["travel_weight"] = self.travel_weight
+        if self.frames > 1:
+            d["frames"] = self.frames
         return d
 
     @staticmethod
@@ -132,6 +160,7 @@ class ObservationSpec:
                 n_robots=int(d.get("n_robots", 0)),
                 k_neighbours=int(d.get("k_neighbours", 6)),
                 travel_weight=float(d.get("travel_weight", 0.0)),
+                frames=int(d.get("frames", 1)),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise ObservationError(f"bad observation spec {d!r}: {e}") from None

@@ -128,3 +128,40 @@ def test_a_plan_brain_trains_under_realistic_sensing_with_a_hold_window(tmp_path
                           conditions=cfg.world_conditions, estimator=True).collisions == 0
     with pytest.raises(ValueError, match="hold_steps"):
         TrainConfig(hold_steps=-1)
+
+
+def test_a_brain_with_memory_trains_reading_its_older_rows_and_runs_robot_by_robot(
+        tmp_path: Path) -> None:
+    """Memory of 3 rows under realistic sensing: the rollouts carry each robot's older rows
+    (zeros only where an episode starts), the exported brain carries them in and out, and
+    eval runs it robot by robot (each robot's controller holds its memory)."""
+    cfg = TrainConfig(algo="ppo", obs="plan", residual=True, travel_weight=PLAN_WEIGHT,
+                      train_safety=True, n_robots=5, n_envs=4, rollout_steps=8, minibatch=64,
+                      policy_steps=2, value_steps=2, eval_every=1, eval_episodes=4, seed=0,
+                      init_std=0.1, conditions="realistic", hold_steps=5, memory_frames=3)
+    spec = obs_spec_for(cfg)
+    assert spec.frames == 3
+    from trainer.ppo.networks import Agent
+    from trainer.rollout import InProcessRollouts
+    src = InProcessRollouts(cfg, TINY_WORLD, "random", 0, 0)
+    agent = Agent(spec.input_dim, cfg, TINY_WORLD.v_max_mps)
+    ro = src.collect(agent, torch.Generator().manual_seed(0))
+    obs = ro.batch.obs.reshape(cfg.rollout_steps, cfg.n_envs, cfg.n_robots, -1).numpy()
+    d = spec.dim
+    assert obs.shape[-1] == 3 * d
+    # step t's second row is step t-1's first, unless an episode started at t (zeros)
+    carried = (obs[1:, :, :, d : 2 * d] == obs[:-1, :, :, :d]).all(axis=(2, 3))
+    started = (obs[1:, :, :, d:] == 0).all(axis=(2, 3))
+    assert (carried | started).all() and carried.sum() > started.sum() > 0
+    assert not obs[0, :, :, d:].any()  # the first step of every world: zeros
+    plan = RunPlan(patterns=["random"], out=tmp_path / "b.onnx", episodes=8, progress=False,
+                   write_files=False)
+    res = train(cfg, plan)
+    assert res.episodes >= 8 and any(not math.isnan(r["eval_success"]) for r in res.curve)
+    write_brain(res.agent, tmp_path / "b.onnx", BrainManifest(observation=spec))
+    brain = load_brain(str(tmp_path / "b.onnx"))
+    assert brain.spec == spec
+    perfect = evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False)
+    real = evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False,
+                          conditions=cfg.world_conditions, estimator=True)
+    assert perfect.episodes == real.episodes == 2 and real.collisions == 0

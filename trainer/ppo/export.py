@@ -9,6 +9,9 @@ The graph holds everything from the raw observation to the action::
                    -> Gemm -> Tanh -> Mul(v_max)                    "action" [batch, 2], m/s
                    -> Gemm -> Softplus -> Add(min) -> Mul(v_max)    "std"    [batch, 2], m/s
 
+A brain with memory (``TrainConfig.memory_frames`` > 1) first puts ``memory`` behind
+``obs`` (Concat) and answers the newest rows of that as ``memory_out`` (Slice).
+
 **Why the graph is built from the weights with ``onnx.helper``, not
 ``torch.onnx.export``.** torch 2.13's default exporter is the dynamo one, which
 needs ``onnxscript`` (not a dependency here) and whose output graph changes
@@ -66,8 +69,14 @@ def _linear_layers(module: torch.nn.Module, prefix: str) -> list[tuple[str, torc
     ]
 
 
-def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.ModelProto:
-    """The agent's deterministic action (and std) as an ONNX model with a dynamic batch axis."""
+def build_onnx(agent: Agent, metadata: dict[str, str] | None = None, frames: int = 1
+               ) -> onnx.ModelProto:
+    """The agent's deterministic action (and std) as an ONNX model with a dynamic batch axis.
+
+    ``frames`` > 1: the agent reads that many rows, newest first; the graph takes the newest
+    as ``obs`` and the older ones as ``memory``, and answers ``memory_out`` (the rows the next
+    step reads behind its own), the contract of :mod:`runtime.decision.observation`'s memory.
+    """
     inits: list[TensorProto] = []
     nodes: list[onnx.NodeProto] = []
 
@@ -96,7 +105,21 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
                 x = unary("Relu", x, f"{name}.relu")
         return x
 
+    row_dim = agent.obs_dim // frames
+    memory_dim = agent.obs_dim - row_dim
     x = "obs"
+    if memory_dim:  # the row, then its older rows: what the network reads
+        nodes += [
+            helper.make_node("Concat", ["obs", "memory"], ["stacked"], axis=1, name="stacked"),
+            helper.make_node(
+                "Slice",
+                ["stacked", const_i64("memory.start", [0]), const_i64("memory.end", [memory_dim]),
+                 const_i64("memory.axes", [1])],
+                ["memory_out"],
+                name="memory_out",
+            ),
+        ]
+        x = "stacked"
     if agent.front is not None:  # the paper brain's fixed front end, before the normaliser
         front_nodes, x = onnx_nodes(agent.front, x, const, const_i64)
         nodes += front_nodes
@@ -150,16 +173,17 @@ def build_onnx(agent: Agent, metadata: dict[str, str] | None = None) -> onnx.Mod
     nodes.append(helper.make_node("Add", [sp, min_std], ["std.floor"], name="std.floor"))
     nodes.append(helper.make_node("Mul", ["std.floor", v_max], ["std"], name="std"))
 
-    graph = helper.make_graph(
-        nodes,
-        "patternrl_brain",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", agent.obs_dim])],
-        [
-            helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2]),
-            helper.make_tensor_value_info("std", TensorProto.FLOAT, ["batch", 2]),
-        ],
-        initializer=inits,
-    )
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", row_dim])]
+    outputs = [
+        helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2]),
+        helper.make_tensor_value_info("std", TensorProto.FLOAT, ["batch", 2]),
+    ]
+    if memory_dim:
+        inputs.append(helper.make_tensor_value_info("memory", TensorProto.FLOAT,
+                                                    ["batch", memory_dim]))
+        outputs.append(helper.make_tensor_value_info("memory_out", TensorProto.FLOAT,
+                                                     ["batch", memory_dim]))
+    graph = helper.make_graph(nodes, "patternrl_brain", inputs, outputs, initializer=inits)
     model = helper.make_model(
         graph,
         opset_imports=[helper.make_opsetid("", OPSET)],
@@ -188,7 +212,7 @@ def write_brain(
     manifest.brain_id = ""
     manifest.signature = None
     body = manifest.to_json(with_id=False, indent=None)
-    model = build_onnx(agent, {METADATA_KEY: body})
+    model = build_onnx(agent, {METADATA_KEY: body}, manifest.observation.frames)
     data = model.SerializeToString()
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(data)
@@ -240,8 +264,12 @@ def agent_from_onnx(path: str | Path, cfg: TrainConfig, v_max_mps: float) -> Age
     if has_ae != cfg.uses_autoencoder:
         kind = "pattern-rl" if has_ae else "ppo"
         raise BrainFileError(f"{path} is a {kind} brain; train it with --algo {kind}")
-    dims = model.graph.input[0].type.tensor_type.shape.dim
-    obs_dim = int(dims[1].dim_value) if len(dims) == 2 else int(w["normaliser.shift"].numel())
+    obs_dim = 0  # the row and its memory: what the network reads
+    for inp in model.graph.input:
+        dims = inp.type.tensor_type.shape.dim
+        obs_dim += int(dims[1].dim_value) if len(dims) == 2 else 0
+    if obs_dim <= 0:
+        obs_dim = int(w["normaliser.shift"].numel())
     if has_ae:
         cfg = cfg.with_(
             latent_dim=int(w["encoder.2.weight"].shape[0]),

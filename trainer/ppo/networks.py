@@ -240,3 +240,29 @@ def gaussian_kl(
     return (
         (std_old / std).log() + (std**2 + (mean - mean_old) ** 2) / (2.0 * std_old**2) - 0.5
     ).sum(-1)
+
+
+@torch.no_grad()
+def with_memory(agent: Agent, frames: int, cfg: TrainConfig, v_max_mps: float) -> Agent:
+    """``agent`` (which reads one row) grown to read ``frames`` rows, newest first, acting
+    exactly as before: the weights on the older rows start at zero, the normaliser's statistics
+    of the older rows are the row's, a decoder reconstructs each row as it did the one.
+    What a brain with memory fine-tuned from one without starts from."""
+    d = agent.obs_dim
+    grown = Agent(frames * d, cfg, v_max_mps, agent.dt_s)
+    grown.policy.min_std = agent.policy.min_std
+    old = agent.state_dict()
+    new = grown.state_dict()
+    for key, w in new.items():
+        o = old.get(key)
+        if o is None:
+            continue
+        if o.shape == w.shape:
+            new[key] = o.clone()
+        elif o.dim() == 2 and w.shape == (o.shape[0], frames * o.shape[1]):  # reads the rows
+            new[key] = torch.cat([o, torch.zeros(o.shape[0], (frames - 1) * o.shape[1],
+                                                 dtype=o.dtype)], dim=1)
+        elif o.dim() >= 1 and w.shape[0] == frames * o.shape[0]:  # one value per input
+            new[key] = o.repeat(frames, *([1] * (o.dim() - 1)))
+    grown.load_state_dict(new)
+    return grown
