@@ -155,6 +155,7 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     E, N, T = cfg.n_envs, cfg.n_robots, cfg.rollout_steps
     mem = Rollout(T, E, N, agent.feature_dim)  # holds what the normaliser reads
     rows = rows if rows is not None else RowMemory(1, E, N, bw.obs_dim)
+    safety_w = reward_for(cfg).safety_penalty
     returns: list[float] = []
     success: list[bool] = []
     with torch.no_grad():
@@ -168,8 +169,11 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             logp = gaussian_logprob(a, mean, std)
             base = agent.base_mps(torch.from_numpy(x.reshape(E * N, -1)))  # 0 unless residual
             vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
-            res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
+            moved = behind_filter(vel, bw) if cfg.train_safety else vel
+            res = bw.step(moved)
             reward = res.reward.copy()
+            if cfg.train_safety and safety_w:  # what the filter had to change, per v_max
+                reward -= safety_w * np.hypot(*(moved - vel).transpose(2, 0, 1)) / v_max_mps
             ep = res.episode
             if ep is not None:
                 trunc = res.truncated[ep.env_ids]

@@ -163,7 +163,10 @@ def evaluate_policy(
     world: WorldConfig = DEFAULT_WORLD,
 ) -> EvalSummary:
     """Deterministic policy, the first episode of ``episodes`` seeded worlds; behind the safety
-    filter when the run trains behind it (``cfg.train_safety``), else without."""
+    filter when the run trains behind it (``cfg.train_safety``), else without. A run that pays
+    for the filter's changes (``reward.safety_penalty``) trains to be safe without it, and is
+    judged without it."""
+    filtered = cfg.train_safety and not reward_for(cfg).safety_penalty
     bw = BatchWorld(
         episodes,
         cfg.n_robots,
@@ -187,7 +190,7 @@ def evaluate_policy(
         x = rows.stack(obs)
         act = agent.act_team_mps(torch.from_numpy(x.reshape(-1, x.shape[-1])), cfg.n_robots)
         vel = act.numpy().reshape(episodes, cfg.n_robots, 2)
-        res = bw.step(behind_filter(vel, bw) if cfg.train_safety else vel)
+        res = bw.step(behind_filter(vel, bw) if filtered else vel)
         rows.advance(x, res.done)
         obs = res.obs
         ep = res.episode

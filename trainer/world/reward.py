@@ -49,6 +49,13 @@ Reward constants (``RewardConfig()``; per robot, per step)
     travel_penalty   0.0     per full-speed step of motion (m_i above). Equal to
                              the step penalty, a step of the team and a step's
                              worth of one robot's travel cost the same.
+    safety_penalty   0.0     per v_max of change the safety filter made to the
+                             robot's command, when a run trains behind it
+                             (``train_safety``): the filter keeps the training
+                             safe and this teaches the brain to ask for what the
+                             filter lets through, so that it is safe without it.
+                             Paid by the rollout (:mod:`trainer.rollout`), where
+                             the filter runs.
     ================ ======= =====================================================
 
     ``PAPER_REWARD`` is eq. 6 alone (no progress term, no bonus).
@@ -73,6 +80,7 @@ class RewardConfig:
     progress_weight: float = 1.0
     formed_bonus: float = 1.0
     travel_penalty: float = 0.0
+    safety_penalty: float = 0.0
 
 
 DEFAULT_REWARD = RewardConfig()

@@ -165,6 +165,30 @@ def test_training_behind_the_filter_moves_robots_by_the_filtered_command() -> No
     np.testing.assert_allclose(bw.positions, pos0 + filtered * DEFAULT_WORLD.dt_s, atol=1e-6)
 
 
+def test_a_run_that_pays_for_the_filters_changes_is_rewarded_less_by_exactly_that() -> None:
+    """``reward.safety_penalty``: each robot pays w per v_max of what the filter changed of its
+    command; the same rollout without the penalty differs by exactly that."""
+    cfg = TrainConfig(algo="ppo", obs="plan", residual=True, travel_weight=W, train_safety=True,
+                      n_robots=12, n_envs=3, rollout_steps=1, init_std=0.5, seed=0,
+                      gamma=0.0, gae_lambda=0.0)
+    paid = cfg.with_(reward={"safety_penalty": 2.0})
+    agent = plan_agent(3)
+    outs = []
+    for c in (cfg, paid):
+        bw = BatchWorld(3, 12, "random", SPEC, seed=11)
+        obs0, pos0, prev0 = bw.observe(), bw.positions.copy(), bw.prev_positions.copy()
+        k = bw.plan_steps_left.copy()  # the landing horizon's steps left, as observed
+        outs.append(collect_rollout(agent, bw, obs0, c, torch.Generator().manual_seed(0), 1.0))
+    with torch.no_grad():
+        base = agent.base_mps(torch.from_numpy(obs0.reshape(36, -1))).numpy()
+    vel = (outs[0].batch.actions.numpy() + base).reshape(3, 12, 2)
+    filtered = commands(vel, pos0, prev0, OrcaParams(), DEFAULT_WORLD, k)[0]
+    change = np.hypot(*(filtered - vel).transpose(2, 0, 1)).reshape(-1)
+    assert (change > 1e-3).any()  # the filter had work to do
+    diff = (outs[0].batch.returns - outs[1].batch.returns).numpy()
+    np.testing.assert_allclose(diff, 2.0 * change, rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.parametrize("n", [9, 40])
 def test_the_robots_plan_frame_equals_the_batch_one_step_after_step(n: int) -> None:
     """PlanFrame keeps the enclosing circle's support from step to step: the same frame and
