@@ -23,6 +23,8 @@ Examples::
 
     python benchmarks/train_speed.py --budget-s 180 --seeds 0,1,2
     python benchmarks/train_speed.py --skip-speed --fig5 --fig5-episodes 300 --fig5-seeds 4
+    python benchmarks/train_speed.py --skip-speed --fig5 --fig5-conditions realistic \
+        --fig5-hold-steps 20 --fig5-png fig5_realistic.png --out-dir benchmarks/results/fig5_realistic
 """
 
 from __future__ import annotations
@@ -140,7 +142,8 @@ def summarise(rows: list[dict[str, Any]], target: float) -> list[dict[str, Any]]
 def _fig5_run(algo: str, seed: int, args: argparse.Namespace) -> tuple[list[dict[str, Any]], str]:
     """One Fig. 5 run (a process of its own with ``--jobs``): its curve and a log line."""
     cfg = TrainConfig(algo=algo, obs=args.fig5_obs, n_robots=args.robots, seed=seed,
-                      front_end=args.fig5_front_end,
+                      front_end=args.fig5_front_end, conditions=args.fig5_conditions,
+                      hold_steps=args.fig5_hold_steps,
                       eval_every=10**6)  # the figure plots training rewards: no held-out runs
     plan = RunPlan(
         patterns=args.fig5_patterns,
@@ -168,8 +171,10 @@ def fig5(args: argparse.Namespace) -> dict[str, Any]:
     for (algo, _), (curve, line) in zip(tasks, results, strict=True):
         curves[algo].append(curve)
         print(line, flush=True)
-    png = Path(args.out_dir) / "fig5.png"
-    summary = plot_fig5(curves, args.fig5_patterns, args.fig5_episodes, png, args.fig5_obs)
+    png = Path(args.out_dir) / args.fig5_png
+    title = args.fig5_obs if args.fig5_conditions == "perfect" else (
+        f"{args.fig5_obs} observation, {args.fig5_conditions}")
+    summary = plot_fig5(curves, args.fig5_patterns, args.fig5_episodes, png, title)
     return {"png": str(png), "final_reward": summary}
 
 
@@ -211,7 +216,8 @@ def plot_fig5(
             ax.plot(grid, mean, label=f"{label} (mean of {len(ys)})")
             ax.fill_between(grid, lo, hi, alpha=0.2)
             summary[f"{pattern}/{algo}"] = float(mean[-1])
-        ax.set_title(f"({chr(97 + s)}) {pattern}, 10 robots, {obs} observation")
+        what = obs if "observation" in obs else f"{obs} observation"
+        ax.set_title(f"({chr(97 + s)}) {pattern}, 10 robots, {what}")
         ax.set_xlabel("training episodes (this pattern)")
         ax.set_ylabel("mean episode reward")
         ax.grid(alpha=0.3)
@@ -238,6 +244,12 @@ def main() -> int:
     p.add_argument("--fig5-episodes", type=int, default=300, help="per pattern stage (300)")
     p.add_argument("--fig5-seeds", type=int, default=4)
     p.add_argument("--fig5-obs", default="general")
+    p.add_argument("--fig5-conditions", default="perfect",
+                   help="the conditions the Fig. 5 runs train under (runtime.conditions: a "
+                   "preset or spec, e.g. realistic; default perfect)")
+    p.add_argument("--fig5-hold-steps", type=int, default=0,
+                   help="the Fig. 5 runs' hold window (train --hold-steps; default 0)")
+    p.add_argument("--fig5-png", default="fig5.png", help="the figure's file name in --out-dir")
     p.add_argument("--fig5-front-end", default="auto", choices=list(FRONT_END_NAMES),
                    help="the brain's front end for the Fig. 5 runs (trainer.ppo.front_end)")
     p.add_argument("--jobs", type=int, default=1,
