@@ -235,3 +235,26 @@ def test_landing_saves_the_plans_last_steps_and_keeps_2r(pattern: str, n: int) -
     assert landed.collisions == 0
     assert landed.min_separation_m >= DEFAULT_WORLD.min_separation_m
     assert np.mean(landed.episode_stats["steps"]) < np.mean(fixed.episode_stats["steps"])
+
+
+def test_a_run_that_pays_for_the_filter_is_judged_without_it(monkeypatch) -> None:
+    """Held-out evaluation: behind the filter when a run trains behind it, without it when the
+    run pays for the filter's changes (it trains to be safe alone)."""
+    import trainer.train as tt
+
+    calls: list[int] = []
+    real = tt.behind_filter
+
+    def counted(vel, bw):  # the real filter, counted
+        calls.append(1)
+        return real(vel, bw)
+
+    monkeypatch.setattr(tt, "behind_filter", counted)
+    cfg = TrainConfig(algo="ppo", obs="plan", residual=True, travel_weight=W, train_safety=True,
+                      n_robots=5, seed=0)
+    agent = plan_agent(3)
+    behind = tt.evaluate_policy(agent, cfg, "circle", 2, seed=1)
+    assert calls and behind.success_rate >= 0.0
+    calls.clear()
+    tt.evaluate_policy(agent, cfg.with_(reward={"safety_penalty": 1.0}), "circle", 2, seed=1)
+    assert not calls
