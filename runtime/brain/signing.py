@@ -63,7 +63,7 @@ ALG: Final = "ed25519"
 DOMAIN: Final = b"patternrl brain signature v1\n"
 SIGNATURE_KEY: Final = "signature"
 USER_KEY_NAME: Final = "brain-key"
-RELEASE_PUBLIC_KEY: Final = "db5b5e19f3ef29787367cdf6a7c527adc6b1b284302e911bf5bacfcbd7f29a44"
+RELEASE_PUBLIC_KEY: Final = "88ee5fc53398a470b60dbf596beac1e264539ace7b4cb05d66e8ab319c07d685"
 """The project's release key (raw ed25519 public key, hex): ``exports/release-key.pub``."""
 
 
