@@ -24,7 +24,8 @@ Examples::
     python benchmarks/train_speed.py --budget-s 180 --seeds 0,1,2
     python benchmarks/train_speed.py --skip-speed --fig5 --fig5-episodes 300 --fig5-seeds 4
     python benchmarks/train_speed.py --skip-speed --fig5 --fig5-conditions realistic \
-        --fig5-hold-steps 20 --fig5-png fig5_realistic.png --out-dir benchmarks/results/fig5_realistic
+        --fig5-hold-steps 20 --fig5-png fig5_realistic.png \
+        --out-dir benchmarks/results/fig5_realistic
 """
 
 from __future__ import annotations
