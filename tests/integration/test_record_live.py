@@ -80,6 +80,8 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
     sim = subprocess.Popen(
         [PY, "-m", "patternrl.cli", "sim", "--swarm", swarm, "--robots", "3", "--patterns",
          "line", "--seed", "2", "--record", str(world_log), "--json", "--zenoh-port", str(port),
+             # the world steps on after the line forms: the viewer has the time to subscribe
+             "--hold-steps", "1000",
          "--wait-robots-s", "90", "--foxglove", "127.0.0.1:0", *tls],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     procs: list[subprocess.Popen[str]] = [sim]
