@@ -89,7 +89,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "runtime.conditions, e.g. 'realistic' or 'gain_noise=0.1,kinematics=diff' "
                    "(default perfect; recorded in the manifest). Under imperfect sensing each "
                    "robot observes its own view through its peer tracker (general and plan "
-                   "observations only)")
+                   "observations only). Several joined by ';' ('perfect;realistic;noise_m=0.1') "
+                   "train under all at once: the envs and held-out episodes are split among "
+                   "them")
     p.add_argument("--hold-steps", type=int,
                    help="an episode that forms goes on this many steps more, each step still "
                    "formed rewarded, and held-out success asks that it held (>= 90%% of them); "

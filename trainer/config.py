@@ -44,6 +44,10 @@ from trainer.world.reward import RewardConfig
 Algo = Literal["pattern-rl", "ppo"]
 ALGOS: tuple[str, ...] = ("pattern-rl", "ppo")
 FRONT_END_NAMES: tuple[str, ...] = ("auto", "none", "rank", "slots", "transport")
+CONDITION_MIX_SEPARATOR = ";"
+"""Joins the specs of a run that trains under several conditions at once."""
+MAX_CONDITION_MIX = 8
+"""The most conditions one run mixes."""
 
 
 @dataclass(frozen=True)
@@ -77,7 +81,10 @@ class TrainConfig:
     """The conditions the training world runs (runtime.conditions: a preset or spec); recorded
     in the brain's manifest. The wheels act in the world; under imperfect sensing each robot
     observes its own view through its peer tracker, with the damped landing
-    (:mod:`trainer.world.sensed`; general and plan observations only)."""
+    (:mod:`trainer.world.sensed`; general and plan observations only). Several specs joined
+    by ``;`` (``"perfect;realistic;noise_m=0.1"``) train under all of them at once: the envs
+    are split among them in order (:func:`trainer.rollout.stage_parts`), every rollout and
+    held-out evaluation holds each one's share."""
     hold_steps: int = 0
     """An episode that forms goes on this many steps more (the hold window, ``eval
     --hold-steps``): every step still formed earns the formed bonus again, and held-out success
@@ -185,19 +192,40 @@ class TrainConfig:
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")
-        try:
-            cond = parse_conditions(self.conditions)
-        except InputError as e:
-            raise ValueError(str(e).removeprefix("conditions: ")) from None
-        if not cond.sensing_perfect and self.obs == "paper":
+        mix = self.condition_mix  # raises ValueError, one line
+        if len(mix) > min(self.n_envs, self.eval_episodes):
+            raise ValueError(f"{len(mix)} conditions need at least as many envs and held-out "
+                             f"episodes, got n_envs {self.n_envs}, eval_episodes "
+                             f"{self.eval_episodes}")
+        if not all(c.sensing_perfect for c in mix) and self.obs == "paper":
             raise ValueError("training under imperfect sensing builds each robot's general or "
                              "plan observation from its own view (--obs general or plan), not "
                              "the paper's")
 
     @property
+    def condition_specs(self) -> tuple[str, ...]:
+        """The specs of :attr:`conditions`: one, or the mixture's in order."""
+        specs = tuple(p.strip() for p in self.conditions.split(CONDITION_MIX_SEPARATOR))
+        if len(specs) > MAX_CONDITION_MIX or (not all(specs) and len(specs) > 1):
+            raise ValueError(f"at most {MAX_CONDITION_MIX} non-empty specs joined "
+                             f"by '{CONDITION_MIX_SEPARATOR}', got '{self.conditions}'")
+        return specs
+
+    @property
+    def condition_mix(self) -> tuple[Conditions, ...]:
+        """The parsed :attr:`conditions`: one, or the mixture's in order."""
+        try:
+            return tuple(parse_conditions(p) for p in self.condition_specs)
+        except InputError as e:
+            raise ValueError(str(e).removeprefix("conditions: ")) from None
+
+    @property
     def world_conditions(self) -> Conditions:
-        """The parsed :attr:`conditions`."""
-        return parse_conditions(self.conditions)
+        """The parsed :attr:`conditions` of a run under one; a mixture raises ValueError."""
+        mix = self.condition_mix
+        if len(mix) > 1:
+            raise ValueError(f"'{self.conditions}' is a mixture of {len(mix)} conditions")
+        return mix[0]
 
     @property
     def front(self) -> str:

@@ -33,10 +33,10 @@ from trainer.ppo.storage import RolloutBatch
 from trainer.rollout import (
     RolloutMode,
     RolloutResult,
-    collect_rollout,
+    collect_parts,
     env_shares,
-    row_memory,
-    stage_world,
+    join_batches,
+    stage_parts,
     worker_generator,
 )
 
@@ -96,11 +96,9 @@ class RolloutWorker:
                  share: tuple[int, int], worker: int, own_noise: bool) -> None:
         torch.set_num_threads(cfg.threads)
         torch.use_deterministic_algorithms(True)
-        self.cfg = cfg.with_(n_envs=share[1] - share[0])
         self.v_max_mps = world.v_max_mps
-        self.bw, self.obs = stage_world(cfg, world, pattern, it, stage, share)
+        self.parts = stage_parts(cfg, world, pattern, it, stage, share)
         self.gen = worker_generator(cfg, stage, it, worker) if own_noise else None
-        self.rows = row_memory(self.cfg, self.cfg.n_envs, self.bw.obs_dim)
 
     def collect(self, agent: Agent, gen_state: torch.Tensor | None
                 ) -> tuple[RolloutBatch, list[float], list[bool], torch.Tensor | None]:
@@ -110,9 +108,7 @@ class RolloutWorker:
             gen = torch.Generator()
             gen.set_state(gen_state)
         assert gen is not None
-        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps,
-                             self.rows)
-        self.obs = ro.obs
+        ro = collect_parts(agent, self.parts, gen, self.v_max_mps)
         return ro.batch, ro.returns, ro.success, gen.get_state() if gen_state is not None else None
 
 
@@ -138,10 +134,7 @@ class RayRollouts:
         parts = self.ray.get([w.collect.remote(ref, gen_state) for w in self.workers])
         if self.single:
             gen.set_state(parts[0][3])  # the worker drew the run's noise: go on from there
-        batches = [p[0] for p in parts]
-        batch = batches[0] if self.single else RolloutBatch(
-            *(torch.cat(cols) for cols in zip(*batches, strict=True))
-        )
+        batch = join_batches([p[0] for p in parts])
         returns = [r for p in parts for r in p[1]]
         success = [s for p in parts for s in p[2]]
         return RolloutResult(batch, np.zeros((0,), dtype=np.float32), returns, success)

@@ -31,6 +31,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 import torch
 
+from runtime.conditions import Conditions
 from runtime.decision.pipeline import commands
 from runtime.decision.safety import OrcaParams
 from runtime.types import Array, F32Array
@@ -82,13 +83,16 @@ def env_shares(n_envs: int, workers: int) -> list[tuple[int, int]]:
 
 
 def stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int,
-                share: tuple[int, int] | None = None) -> tuple[BatchWorld, F32Array]:
-    """A stage's worlds (all envs, or the ``share`` [a, b) of them) and their first observation."""
+                share: tuple[int, int] | None = None, conditions: Conditions | None = None
+                ) -> tuple[BatchWorld, F32Array]:
+    """A stage's worlds (all envs, or the ``share`` [a, b) of them) and their first observation,
+    under ``conditions`` (default: the run's one)."""
     a, b = share if share is not None else (0, cfg.n_envs)
     world_seed = cfg.seed + RESUME_SEED_STRIDE * it  # it = 0 unless resumed
     bw = BatchWorld(b - a, cfg.n_robots, pattern, obs_spec_for(cfg), world=world,
                     reward=reward_for(cfg), seed=world_seed, first_env=a,
-                    rank_goals=cfg.front in ("rank", "slots"), conditions=cfg.world_conditions,
+                    rank_goals=cfg.front in ("rank", "slots"),
+                    conditions=conditions if conditions is not None else cfg.world_conditions,
                     hold_steps=cfg.hold_steps)
     obs = bw.observe()
     if cfg.desync:
@@ -97,6 +101,41 @@ def stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, sta
         rng = np.random.default_rng([cfg.seed, it, stage])
         bw.steps[:] = rng.integers(0, bw.step_limit, size=cfg.n_envs)[a:b]
     return bw, obs
+
+
+def condition_shares(cfg: TrainConfig, n_envs: int | None = None
+                     ) -> list[tuple[tuple[int, int], str]]:
+    """Each of the run's conditions (its spec) with its envs ``[a, b)`` of ``n_envs`` (default
+    the run's): a mixture's envs split as evenly as possible, in the mixture's order."""
+    specs = cfg.condition_specs
+    return list(zip(env_shares(n_envs or cfg.n_envs, len(specs)), specs, strict=True))
+
+
+@dataclass
+class WorldPart:
+    """The envs of one stage under one condition: a world, its observation, its memory."""
+
+    cfg: TrainConfig
+    """The run's settings with this part's ``n_envs`` and condition."""
+    bw: BatchWorld
+    obs: F32Array
+    rows: RowMemory
+
+
+def stage_parts(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int,
+                share: tuple[int, int] | None = None) -> list[WorldPart]:
+    """A stage's worlds (all envs, or the ``share`` [a, b) of them), one part per condition
+    of the run that the share meets; env e lives under the same condition whoever holds it."""
+    a, b = share if share is not None else (0, cfg.n_envs)
+    parts = []
+    for (ca, cb), spec in condition_shares(cfg):
+        lo, hi = max(a, ca), min(b, cb)
+        if lo < hi:
+            part_cfg = cfg.with_(n_envs=hi - lo, conditions=spec)
+            bw, obs = stage_world(cfg, world, pattern, it, stage, (lo, hi),
+                                  part_cfg.world_conditions)
+            parts.append(WorldPart(part_cfg, bw, obs, row_memory(part_cfg, hi - lo, bw.obs_dim)))
+    return parts
 
 
 class RolloutResult(NamedTuple):
@@ -195,20 +234,41 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     return RolloutResult(batch, obs, returns, success)
 
 
+def join_batches(batches: list[RolloutBatch]) -> RolloutBatch:
+    """Several rollouts' samples as one batch (one batch as it is)."""
+    if len(batches) == 1:
+        return batches[0]
+    return RolloutBatch(*(torch.cat(cols) for cols in zip(*batches, strict=True)))
+
+
+def collect_parts(agent: Agent, parts: list[WorldPart], gen: torch.Generator,
+                  v_max_mps: float) -> RolloutResult:
+    """:func:`collect_rollout` on every part in turn (one noise stream), joined; each part
+    goes on from where its rollout ended."""
+    results = []
+    for p in parts:
+        ro = collect_rollout(agent, p.bw, p.obs, p.cfg, gen, v_max_mps, p.rows)
+        p.obs = ro.obs
+        results.append(ro)
+    if len(results) == 1:
+        return results[0]
+    return RolloutResult(join_batches([r.batch for r in results]),
+                         np.concatenate([r.obs for r in results]),
+                         [x for r in results for x in r.returns],
+                         [x for r in results for x in r.success])
+
+
 class InProcessRollouts:
-    """The stage's worlds in this process: :func:`collect_rollout` on one ``BatchWorld``."""
+    """The stage's worlds in this process: :func:`collect_rollout` on each condition's
+    ``BatchWorld`` (one unless the run mixes conditions)."""
 
     def __init__(self, cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, stage: int
                  ) -> None:
         self.cfg, self.v_max_mps = cfg, world.v_max_mps
-        self.bw, self.obs = stage_world(cfg, world, pattern, it, stage)
-        self.rows = row_memory(cfg, cfg.n_envs, self.bw.obs_dim)
+        self.parts = stage_parts(cfg, world, pattern, it, stage)
 
     def collect(self, agent: Agent, gen: torch.Generator) -> RolloutResult:
-        ro = collect_rollout(agent, self.bw, self.obs, self.cfg, gen, self.v_max_mps,
-                             self.rows)
-        self.obs = ro.obs
-        return ro
+        return collect_parts(agent, self.parts, gen, self.v_max_mps)
 
     def close(self) -> None:
         pass
@@ -221,10 +281,15 @@ __all__ = [
     "RolloutMode",
     "RolloutResult",
     "RolloutSource",
+    "WorldPart",
     "behind_filter",
+    "collect_parts",
     "collect_rollout",
+    "condition_shares",
     "env_shares",
+    "join_batches",
     "row_memory",
+    "stage_parts",
     "stage_world",
     "worker_generator",
 ]

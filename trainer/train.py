@@ -50,8 +50,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from runtime.conditions import Conditions
 from runtime.decision.patterns import make_pattern, pattern_label
 from runtime.errors import InputError
+from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.checkpoints import (
     TrainState,
@@ -74,6 +76,7 @@ from trainer.rollout import (
     RolloutMode,
     RolloutSource,
     behind_filter,
+    condition_shares,
     row_memory,
 )
 from trainer.world.training_world import BatchWorld, check_pattern
@@ -165,8 +168,27 @@ def evaluate_policy(
     """Deterministic policy, the first episode of ``episodes`` seeded worlds; behind the safety
     filter when the run trains behind it (``cfg.train_safety``), else without. A run that pays
     for the filter's changes (``reward.safety_penalty``) trains to be safe without it, and is
-    judged without it."""
+    judged without it. A run under a mixture of conditions is judged on each one's share of
+    the episodes, split as its envs are."""
+    parts = [_evaluate_under(agent, cfg, pattern, (a, b), seed, world,
+                             cfg.with_(conditions=spec).world_conditions)
+             for (a, b), spec in condition_shares(cfg, episodes)]
+    ok, formed, steps, collisions, error = (np.concatenate(c) for c in zip(*parts, strict=True))
+    return EvalSummary(
+        success_rate=float(ok.mean()),
+        mean_steps=float(steps[formed].mean()) if formed.any() else math.nan,
+        collisions=int(collisions.sum()),
+        formation_error=float(error.mean()),
+    )
+
+
+def _evaluate_under(agent: Agent, cfg: TrainConfig, pattern: str, share: tuple[int, int],
+                    seed: int, world: WorldConfig, conditions: Conditions
+                    ) -> tuple[Array, Array, Array, Array, Array]:
+    """:func:`evaluate_policy`'s episodes ``[a, b)``, all under ``conditions``: success,
+    formed, steps, collisions and final error per episode."""
     filtered = cfg.train_safety and not reward_for(cfg).safety_penalty
+    first, episodes = share[0], share[1] - share[0]
     bw = BatchWorld(
         episodes,
         cfg.n_robots,
@@ -175,7 +197,8 @@ def evaluate_policy(
         world=world,
         reward=reward_for(cfg),
         seed=seed,
-        conditions=cfg.world_conditions,
+        first_env=first,
+        conditions=conditions,
         hold_steps=cfg.hold_steps,
     )
     obs = bw.observe()
@@ -202,13 +225,7 @@ def evaluate_policy(
             if cfg.hold_steps and ep.held is not None:
                 held[ids] = ep.held[new] >= HOLD_SHARE
             done[ids] = True
-    ok = formed & (collisions == 0) & held
-    return EvalSummary(
-        success_rate=float(ok.mean()),
-        mean_steps=float(steps[formed].mean()) if formed.any() else math.nan,
-        collisions=int(collisions.sum()),
-        formation_error=float(error.mean()),
-    )
+    return formed & (collisions == 0) & held, formed, steps, collisions, error
 
 
 # ------------------------------------------------------------------- rollouts

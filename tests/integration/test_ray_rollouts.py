@@ -1,4 +1,5 @@
-"""Rollouts on a local Ray instance: one worker trains the in-process brain, bit for bit."""
+"""Rollouts on a local Ray instance: one worker trains the in-process brain, bit for bit
+(one condition, and a mixture of conditions)."""
 
 from __future__ import annotations
 
@@ -16,19 +17,23 @@ TINY = TrainConfig(n_robots=4, n_envs=4, rollout_steps=8, minibatch=64, ae_steps
 
 
 def test_one_ray_worker_trains_the_in_process_brain(tmp_path: Path) -> None:
+    """Under one condition and under a mixture of two (the worker plays both parts in order)."""
     ray = pytest.importorskip("ray")
     plan = dict(patterns=["line"], out=tmp_path / "b.onnx", episodes=1, write_files=False,
                 progress=False)
-    here = train(TINY, RunPlan(**plan))  # type: ignore[arg-type]
+    configs = [TINY, TINY.with_(obs="plan", conditions="perfect;noise_m=0.05")]
+    here = [train(cfg, RunPlan(**plan)) for cfg in configs]  # type: ignore[arg-type]
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
              object_store_memory=100 * 1024 * 1024)
     try:
-        there = train(TINY, RunPlan(**plan, rollouts=RolloutMode(ray=True, workers=1)))  # type: ignore[arg-type]
+        there = [train(cfg, RunPlan(**plan, rollouts=RolloutMode(ray=True, workers=1)))  # type: ignore[arg-type]
+                 for cfg in configs]
     finally:
         ray.shutdown()
     assert not ray.is_initialized()
-    assert len(here.curve) >= 2 and len(there.curve) == len(here.curve)
-    assert there.rollouts == {"mode": "ray", "workers": 1, "address": "local"}
-    for k, v in here.agent.state_dict().items():
-        assert torch.equal(v, there.agent.state_dict()[k]), k
-    assert [r["episodes"] for r in here.curve] == [r["episodes"] for r in there.curve]
+    for a, b in zip(here, there, strict=True):
+        assert len(a.curve) >= 2 and len(b.curve) == len(a.curve)
+        assert b.rollouts == {"mode": "ray", "workers": 1, "address": "local"}
+        for k, v in a.agent.state_dict().items():
+            assert torch.equal(v, b.agent.state_dict()[k]), k
+        assert [r["episodes"] for r in a.curve] == [r["episodes"] for r in b.curve]
