@@ -310,6 +310,11 @@ def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
         assert ans[1].accepted and ans[1].old_brain == good_id and ans[1].new_brain == RULE_ASSIGN
         stepper.wait_steps(3)
         assert stepper.brains[-1] == {0: good_id, 1: RULE_ASSIGN, 2: good_id}
+        for i in range(n):  # no swap left an error (a busy machine may starve a robot of
+            # poses for a second while a peer loads its brain: the watchdog's note is no error)
+            st = world.wait_status(i, lambda s: s.errors == 0, 30.0, "a clean status")
+            assert st.last_error == "" or st.last_error.startswith("watchdog: no pose"), (
+                st.last_error)
     finally:
         stepper.finish()
     # every step got every robot's command (lockstep waited for all of them), and each
@@ -320,9 +325,6 @@ def test_hot_swap_valid_and_invalid_brains_without_missing_a_step(
         seq = [b[i] for b in stepper.brains]
         changes = [k for k in range(1, len(seq)) if seq[k] != seq[k - 1]]
         assert len(changes) == (2 if i == 1 else 1)
-    for i in range(n):
-        st = world.wait_status(i, lambda s: s.errors == 0, 30.0, "a clean status")
-        assert st.last_error == ""
 
 
 def test_realtime_stale_peers_watchdog_and_exit_after_silence(
