@@ -350,6 +350,7 @@ def run(args: argparse.Namespace) -> int:
             args.final_eval_episodes,
             progress=False if args.no_progress else None,
             label=args.out.stem,
+            conditions=cfg.condition_specs,
         )
         write_brain(result.agent, args.out, manifest, args.sign_key)
 
@@ -381,6 +382,10 @@ def run(args: argparse.Namespace) -> int:
                 + (f", steps {m['steps_ratio']:.3f}x the lower bound" if m["steps_ratio"] else "")
                 + f"; raw (filter off): success {100 * m['raw']['success_rate']:.1f} %, "
                 f"{m['raw']['collisions']} collisions"
+                + "".join(f"; {spec} (tracker, held): success {100 * c['success_rate']:.1f} %, "
+                          f"{c['collisions']} collisions"
+                          + (f", steps {c['steps_ratio']:.3f}x" if c["steps_ratio"] else "")
+                          for spec, c in m.get("conditions", {}).items())
             )
         print(
             f"{args.out} ({summary['size_bytes'] // 1024} KB): {cfg.algo}, {spec.name} "

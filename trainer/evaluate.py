@@ -43,6 +43,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -275,12 +276,15 @@ def evaluate_brain(
 
 
 def manifest_evaluation(brain: Brain, pattern: str, n_robots: int, episodes: int,
-                        progress: bool | None = None, label: str = "") -> dict[str, Any]:
+                        progress: bool | None = None, label: str = "",
+                        conditions: Sequence[str] = ()) -> dict[str, Any]:
     """A brain manifest's ``evaluation`` block: ``episodes`` held-out episodes with the
     safety filter at its defaults (as shipped), and under ``raw`` the same episodes with
     the filter off (the brain alone, as the paper runs it). Success at the first passage
     (``hold_steps`` 0), as every shipped manifest measured it; ``held_rate`` says how many of
-    the formed held the next ``HOLD_STEPS`` steps."""
+    the formed held the next ``HOLD_STEPS`` steps. Under ``conditions`` (the specs a run
+    trained under, the perfect world apart) the same episodes again, each robot on its own
+    view with the tracker and the filter, success asking that it held: one block a spec."""
     block = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
                            progress=progress, label=label, hold_steps=0).manifest_block()
     held = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
@@ -289,6 +293,16 @@ def manifest_evaluation(brain: Brain, pattern: str, n_robots: int, episodes: int
     raw = evaluate_brain(brain, pattern, n_robots, episodes, seed=DEFAULT_EVAL_SEED,
                          safety=None, progress=progress, label=f"{label} raw", hold_steps=0)
     block["raw"] = raw.manifest_block()
+    under = {}
+    for spec in conditions:
+        cond = parse_conditions(spec)
+        if cond != PERFECT:
+            under[spec] = evaluate_brain(brain, pattern, n_robots, episodes,
+                                         seed=DEFAULT_EVAL_SEED, progress=progress,
+                                         label=f"{label} {spec}", conditions=cond,
+                                         estimator=True).manifest_block() | {"estimator": True}
+    if under:
+        block["conditions"] = under
     return block
 
 

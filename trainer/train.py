@@ -53,7 +53,7 @@ import torch
 from runtime.conditions import Conditions
 from runtime.decision.patterns import make_pattern, pattern_label
 from runtime.errors import InputError
-from runtime.types import Array
+from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.checkpoints import (
     TrainState,
@@ -184,7 +184,7 @@ def evaluate_policy(
 
 def _evaluate_under(agent: Agent, cfg: TrainConfig, pattern: str, share: tuple[int, int],
                     seed: int, world: WorldConfig, conditions: Conditions
-                    ) -> tuple[Array, Array, Array, Array, Array]:
+                    ) -> tuple[BoolArray, BoolArray, Array, IntArray, Array]:
     """:func:`evaluate_policy`'s episodes ``[a, b)``, all under ``conditions``: success,
     formed, steps, collisions and final error per episode."""
     filtered = cfg.train_safety and not reward_for(cfg).safety_penalty

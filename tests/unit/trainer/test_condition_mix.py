@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
+from patternrl.cli import main
 from runtime.conditions import PERFECT, parse_conditions
 from runtime.world_config import DEFAULT_WORLD
 from trainer.config import TrainConfig, obs_spec_for
@@ -73,3 +77,22 @@ def test_held_out_episodes_split_as_the_envs_under_each_condition() -> None:
                             seed=5, world=WORLD)
     assert twice == one
     assert noisy.formation_error != one.formation_error
+
+
+def test_a_brain_trained_under_conditions_is_judged_under_each_in_its_manifest(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`patternrl train --conditions 'perfect;noise_m=0.05'`: the manifest's evaluation holds
+    the perfect world's block as ever and one more for the noise, with the tracker, held."""
+    out = tmp_path / "b.onnx"
+    code = main(["train", "--pattern", "line", "--obs", "plan", "--robots", "4", "--envs", "2",
+                 "--eval-episodes", "2", "--conditions", "perfect;noise_m=0.05", "--set",
+                 "rollout_steps=4", "--set", "minibatch=16", "--time-budget-s", "0",
+                 "--final-eval-episodes", "3", "--no-progress", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0
+    ev = json.loads(out.with_suffix(".json").read_text())["evaluation"]
+    assert list(ev["conditions"]) == ["noise_m=0.05"]
+    noisy = ev["conditions"]["noise_m=0.05"]
+    assert (noisy["episodes"], noisy["hold_steps"], noisy["estimator"]) == (3, 20, True)
+    assert ev["episodes"] == 3 and ev["hold_steps"] == 0  # the perfect world's, as ever
+    assert "noise_m=0.05 (tracker, held): success" in text
