@@ -115,6 +115,12 @@ class Perception:
         return self.tracker is not None and self.estimator and (
             c.k_nearest > 0 or math.isfinite(c.range_m))
 
+    @property
+    def uses_plans(self) -> bool:
+        """Whether the tracker reads the team's plan (:meth:`perceive`'s ``follow``): the
+        brain plans from each peer carried over its view's age along it."""
+        return self.tracker is not None and self.estimator
+
     def perceive(self, truth: Array, follow: Array | None = None) -> Seen:
         """Each robot's team this step, from the team as it truly is now, ``truth`` (B, n, 2).
 
@@ -125,14 +131,16 @@ class Perception:
         whatever happened since, unseen.
 
         ``follow`` (B, n, 2) m/s, NaN where none: each robot's plan of last step for its
-        team (:attr:`runtime.decision.controller.Controller.team_velocity`); under
+        team (:attr:`runtime.decision.controller.Controller.team_velocity`): with the
+        estimator the brain plans from each peer carried over its view's age along it
+        (:attr:`runtime.decision.estimator.PeerTracker.planned`), and under
         :attr:`follows_plans` a peer out of view is carried along it."""
         view, age = self.sensor.sense(truth)
         self.last_age = age
         if self.tracker is None:
             return Seen(view)
-        now, vel, _ = self.tracker.update(view, age,
-                                          follow if self.follows_plans else None)
+        now, vel, _ = self.tracker.update(view, age, follow if self.estimator else None,
+                                          carry=self.follows_plans)
         B = view.shape[0]
         own = view[np.arange(B), self.observer]
         if self._own is None or self._own.shape[1] != B:
@@ -157,7 +165,7 @@ class Perception:
         if old.any():
             ref[old, 0:2] = now[old]
             ref[old, 2:4] = np.broadcast_to(own[:, None], now.shape)[old]
-        plan = self.tracker.sensed if self.estimator else view  # smoothed, as sensed
+        plan = self.tracker.planned if self.estimator else view  # smoothed, along the plan
         return Seen(plan, now, vel, ref)
 
 
@@ -202,7 +210,7 @@ class LocalDecisions:
         P = np.asarray(truth, dtype=np.float64)
         seen = self.perception.perceive(np.repeat(P, n, axis=0), self._follow)
         self.last_view = seen.plan.reshape(E, n, n, 2)
-        follow = self._follow = None if not self.perception.follows_plans else (
+        follow = self._follow = None if not self.perception.uses_plans else (
             np.full((E * n, n, 2), np.nan))
         out = np.zeros((E, n, 2))
         slots = np.full((E, n), -1, dtype=np.int64)
