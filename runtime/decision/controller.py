@@ -32,7 +32,7 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame, plan_velocity
 from runtime.decision.safety import OrcaParams, landing, make_filter
-from runtime.decision.settle import CENTROID_FRAME, Lander, Settle
+from runtime.decision.settle import Lander, Settle, centroid_targets
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -79,6 +79,8 @@ class Controller:
         self._row: NDArray[Any] = np.zeros((1, 1, self._rows.dim))  # a brain's own input
         self._pattern_obj: object = None
         self._cc: Array = np.zeros((0, 2))
+        self._tick = 0  # distinct steps decided (a repeated realtime step is the same)
+        self._to_slot: float | None = None  # the robot's way left to its slot under a plan
         self._team_plan: tuple[Array, Array, float] | Array | None = None
         """The last decision's plan for the team: (targets, positions, steps left), or the
         team rule's velocities; None without a plan (see :attr:`team_velocity`)."""
@@ -147,6 +149,8 @@ class Controller:
         self._pattern_obj = pattern
         self._prev_slots = None
         self._assignment = None
+        if self._lander is not None:  # a new pattern lands afresh
+            self._lander.reset()
 
     def _use_pattern(self, pattern: Array) -> None:
         """Cache the centred pattern; equal values in a new array object keep it."""
@@ -169,12 +173,15 @@ class Controller:
             self._assignment = None
             self._vel = np.zeros((1, n, 2))
             self._forget_memory()
+            if self._lander is not None:  # another team's centroid
+                self._lander.reset()
         elif step is not None and step == self._last_step:
             self._frames[0] = pos  # the same step again (realtime): refresh, do not shift
         else:
             f = self._frames
             self._frames = [pos, f[0], f[1]]
             self._memory_in = self._memory  # a new step reads what the last one answered
+            self._tick += 1
         self._last_step = step
 
     # -------------------------------------------------------------- decide
@@ -198,12 +205,23 @@ class Controller:
             pts = self._cc[slots]
             tx, ty, k = self._plan.solve_floats(pos, pts, spec.travel_weight, self.world)
             if self._lander is not None and self._lander.settle.lands_in_centroid(k):
-                tx, ty, k = self._plan.solve_floats(pos, pts, CENTROID_FRAME, self.world)
-            qx, qy = pts[i].tolist()
-            self._team_plan = (pts + np.array([tx, ty]), pos, k)
-            return qx + tx, qy + ty, k
+                target, kk = self._landing_plan(pos, pts)
+                k = float(kk)
+            else:
+                target = pts + np.array([tx, ty])
+            self._team_plan = (target, pos, k)
+            sx, sy = target[i].tolist()
+            self._to_slot = math.hypot(sx - pos[i, 0], sy - pos[i, 1])
+            return sx, sy, k
         qx, qy = self._cc[int(slots[i])].tolist()
         return qx + cx, qy + cy, None  # == slot_positions(...)[i]
+
+    def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
+        """Under noise, the last steps of a plan: the team's targets (n, 2) in the frame of
+        its centroid as the lander averages it, and the steps left (a 0-d array)."""
+        assert self._lander is not None
+        m = self._lander.centroid(pos.mean(axis=0), self._tick)
+        return centroid_targets(pos, points, m, self.world)
 
     def _act(self, i: int, P: Array, V: Array, slots: IntArray, cx: float, cy: float
              ) -> tuple[float, float, float | None]:
@@ -215,10 +233,12 @@ class Controller:
             c = np.asarray(self._pattern_obj, dtype=np.float64)
             out, k = team(P, c[None], slots[None])
             if self._lander is not None and self._lander.settle.lands_in_centroid(k[0]):
-                out, k = team(P, c[None], slots[None], CENTROID_FRAME)  # landing under noise
+                target, kk = self._landing_plan(P[0], c[slots])  # landing under noise
+                out, k = plan_velocity(target, P[0], kk, self.world)[None], kk[None]
             team_v: Array = np.asarray(out, dtype=np.float64)[0]
             self._team_plan = team_v
             vx, vy = team_v[i].tolist()
+            self._to_slot = math.hypot(vx, vy) * float(k[0]) * self.world.dt_s
             return vx, vy, float(k[0])
         if not spec.needs_slots:  # the paper's observation
             obs = observe(spec, self._frames, None, (i,), self.world)
@@ -272,6 +292,7 @@ class Controller:
         """
         t0 = time.perf_counter_ns()
         self._team_plan = None
+        self._to_slot = None
         pos = np.array(positions, dtype=np.float64)  # a copy: the history is ours
         if pattern is not self._pattern_obj:
             self._use_pattern(pattern)
@@ -300,7 +321,8 @@ class Controller:
             return self._hold(t0, 0.0, 0.0, ERR_BRAIN, slot)
         if not (math.isfinite(bvx) and math.isfinite(bvy)):
             return self._hold(t0, bvx, bvy, ERR_NONFINITE, slot)
-        px, py = (bvx, bvy) if self._lander is None else self._lander.apply(bvx, bvy)
+        px, py = (bvx, bvy) if self._lander is None else self._lander.apply(bvx, bvy,
+                                                                             self._to_slot)
         # 5. command: clamp and the safety filter (no neighbour considered without one)
         horizon = landing(self.safety or OrcaParams(), steps_left, self.world)
         if filter_positions is not None:

@@ -32,7 +32,7 @@ from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
 from runtime.decision.rules import plan_targets, plan_velocity
-from runtime.decision.settle import CENTROID_FRAME, settle_for
+from runtime.decision.settle import centroid_targets, settle_for, smooth_centroid
 from runtime.types import Array, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -62,6 +62,11 @@ class SensedRows:
         self._has_prev = np.zeros(E * n, dtype=bool)
         self._eye = np.arange(n)
         self._follow: Array | None = None  # (E n, n, 2) each robot's plan of the last step
+        self._centroid = np.zeros((E * n, 2))  # each robot's landing centroid (settle.Lander)
+        self._landing = np.zeros(E * n, dtype=bool)  # who landed in it last step
+        self.to_slot: Array = np.full((E, n), np.inf)
+        """(E, n) m: each robot's way left to its slot under its plan, as of the last rows
+        (inf: none), which the training world's damped landing reads."""
 
     def restart(self, env_ids: IntArray) -> None:
         """These envs start new episodes: their robots' roll call, and no hysteresis."""
@@ -70,6 +75,8 @@ class SensedRows:
         self.perception.restart(rows)
         self._has_prev[rows] = False
         self._potentials[rows] = 0.0
+        self._landing[rows] = False
+        self.to_slot.reshape(-1)[rows] = np.inf
 
     def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:
         """Every robot's row (E, n, dim) float32 from the teams as they truly are now,
@@ -98,11 +105,20 @@ class SensedRows:
             G, K = plan_targets(P, C, slots, self.spec.travel_weight, self.world)
             land = (np.zeros(len(K), dtype=bool) if self.settle is None
                     else self.settle.lands_in_centroid(K))  # under noise: the centroid frame
-            if land.any():
-                G[land], K[land] = plan_targets(P[land], C[land], slots[land], CENTROID_FRAME,
-                                                self.world)
+            if land.any():  # averaged over the landing's steps (runtime.decision.settle)
+                assert self.settle is not None
+                cont = land & self._landing
+                m = P[land].mean(axis=1)
+                m[cont[land]] = smooth_centroid(self._centroid[cont], m[cont[land]],
+                                                self.settle.centroid_gain)
+                self._centroid[land] = m
+                pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
+                G[land], K[land] = centroid_targets(P[land], pts, m, self.world)
+            self._landing = land
             # each robot's plan for its whole team: peers out of view go along it next step
             self._follow = plan_velocity(G, P, K, self.world)
+            mine = np.arange(E * n), np.tile(self._eye, E)
+            self.to_slot = np.hypot(*(G[mine] - P[mine]).T).reshape(E, n)
         else:
             G = np.take_along_axis(Cc, slots[..., None], axis=1) + P.mean(axis=1, keepdims=True)
         obs = general_observation(P, P - V * self.world.dt_s, G, self.spec.k_neighbours,

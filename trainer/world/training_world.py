@@ -554,7 +554,9 @@ class BatchWorld:
         # 1-3. actions -> velocities (the damped landing of a robot that senses through
         # noise, the conditions' wheels), kinematics, contacts
         if self._landing is not None:
-            actions = damp_landing(actions, self._landing, self.world.dt_s)
+            to_slot = None if self._sensed is None or self.obs_spec.name != "plan" \
+                else self._sensed.to_slot
+            actions = damp_landing(actions, self._landing, self.world.dt_s, to_slot)
         if self.wheels is not None:
             actions = self.wheels.apply(actions)
         X1, hits, collisions, falls = move(actions, self._X, self._travel, self.world)
