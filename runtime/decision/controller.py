@@ -220,7 +220,7 @@ class Controller:
         """Under noise, the last steps of a plan: the team's targets (n, 2) in the frame of
         its centroid as the lander averages it, and the steps left (a 0-d array)."""
         assert self._lander is not None
-        m = self._lander.centroid(pos.mean(axis=0), self._tick)
+        m = self._lander.centroid(pos.mean(axis=0), self._tick, len(pos))
         return centroid_targets(pos, points, m, self.world)
 
     def _act(self, i: int, P: Array, V: Array, slots: IntArray, cx: float, cy: float

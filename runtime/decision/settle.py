@@ -85,10 +85,22 @@ class Settle:
     """The landing frame's centroid is the team's, as the robot sees it, averaged over the
     landing's steps at this gain (1: this step's alone; see "Landing frame")."""
 
+    sigma_m: float = 0.0
+    """The tracker's position error on one peer (m, per axis): the seen centroid of n robots
+    carries about ``sigma_m / sqrt(n)`` of it."""
+    gate_sigmas: float = 10.0
+    """A seen centroid this many of its sigmas off the average moves the average at once
+    (see "The centroid, averaged")."""
+
     def lands_in_centroid(self, steps_left: Any) -> Any:
         """Whether a plan with ``steps_left`` (a number or an array) lands in the centroid
         frame (travel weight :data:`CENTROID_FRAME`) rather than its own."""
         return np.asarray(steps_left) <= self.centroid_steps
+
+    def centroid_gate(self, n: Any) -> Any:
+        """How far (m) the centroid seen by a robot of ``n`` may stray from its average
+        before it moves the average at once (``gate_sigmas`` of its noise)."""
+        return self.gate_sigmas * self.sigma_m / np.sqrt(np.maximum(n, 1))
 
 
 CENTROID_FRAME = 1.0
@@ -102,7 +114,7 @@ def settle_for(conditions: Conditions, estimator: bool = False,
         return None
     sigma = steady_sigma(conditions.noise_m) if estimator else conditions.noise_m
     return Settle(radius_m=min(SETTLE_SIGMAS * sigma, 0.5 * world.max_step_m),
-                  gain=SETTLE_GAIN)
+                  gain=SETTLE_GAIN, sigma_m=sigma)
 
 
 SETTLE_SIGMAS = 2.5
@@ -130,9 +142,10 @@ class Lander:
         self._base: Array | None = None  # the centroid as of the landing's last step
         self._m: Array | None = None  # and as of this one
 
-    def centroid(self, seen: Array, tick: int) -> Array:
-        """The landing frame's centroid (2,) m, from the team's as seen this step, ``seen``,
-        on the controller's step ``tick``: the same tick again (realtime) redoes this step's
+    def centroid(self, seen: Array, tick: int, n: int) -> Array:
+        """The landing frame's centroid (2,) m, from the team's as seen this step, ``seen``
+        (a team of ``n``), on the controller's step ``tick``: the same tick again (realtime)
+        redoes this step's
         average, a tick that does not follow the last one starts a new landing."""
         if tick == self._tick and self._base is not None:
             prev: Array | None = self._base
@@ -141,7 +154,8 @@ class Lander:
         else:
             prev = None
         self._base, self._tick = prev, tick
-        self._m = smooth_centroid(prev, seen, self.settle.centroid_gain)
+        self._m = smooth_centroid(prev, seen, self.settle.centroid_gain,
+                                  float(self.settle.centroid_gate(n)))
         return self._m
 
     def apply(self, vx: float, vy: float, to_slot_m: float | None = None
@@ -153,12 +167,18 @@ class Lander:
         return vx * g, vy * g
 
 
-def smooth_centroid(prev: Array | None, seen: Array, gain: float) -> Array:
-    """``prev + gain (seen - prev)`` (``seen`` where there is no ``prev``), (..., 2) m."""
+def smooth_centroid(prev: Array | None, seen: Array, gain: float, gate: Any = math.inf
+                    ) -> Array:
+    """``prev + g (seen - prev)`` (``seen`` where there is no ``prev``), (..., 2) m, where g
+    is ``gain`` for a seen centroid well within ``gate`` (m) of ``prev`` and grows to 1 as it
+    comes to it: ``gain + (1 - gain) min(1, (|seen - prev| / gate)^2)``."""
     now = np.asarray(seen, dtype=np.float64)
     if prev is None:
         return now.copy()
-    out: Array = prev + gain * (now - prev)
+    r = now - prev
+    off = np.minimum(1.0, (np.hypot(r[..., 0], r[..., 1]) / gate) ** 2)
+    g = gain + (1.0 - gain) * off
+    out: Array = prev + np.asarray(g)[..., None] * r
     return out
 
 

@@ -110,7 +110,8 @@ class SensedRows:
                 cont = land & self._landing
                 m = P[land].mean(axis=1)
                 m[cont[land]] = smooth_centroid(self._centroid[cont], m[cont[land]],
-                                                self.settle.centroid_gain)
+                                                self.settle.centroid_gain,
+                                                self.settle.centroid_gate(n))
                 self._centroid[land] = m
                 pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
                 G[land], K[land] = centroid_targets(P[land], pts, m, self.world)

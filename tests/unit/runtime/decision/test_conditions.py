@@ -320,23 +320,30 @@ def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None
 def test_the_landing_averages_the_teams_centroid_over_its_steps() -> None:
     """A landing's centroid is the running average of the centroids seen on consecutive
     steps; the same step again (realtime) redoes its own average, a gap or a reset starts
-    from the view."""
+    from the view, and a centroid seen far beyond its noise moves the average at once."""
+    import dataclasses
+
     from runtime.decision.settle import Lander, centroid_targets, settle_for
 
     s = settle_for(Conditions(noise_m=0.1), estimator=True)
     assert s is not None and s.centroid_gain == pytest.approx(0.1)
-    lander = Lander(s, 0.1)
-    assert np.allclose(lander.centroid(np.array([1.0, 0.0]), 5), [1.0, 0.0])
-    assert np.allclose(lander.centroid(np.array([2.0, 0.0]), 6), [1.1, 0.0])
-    assert np.allclose(lander.centroid(np.array([3.0, 0.0]), 6), [1.2, 0.0])  # redone
-    assert np.allclose(lander.centroid(np.array([3.0, 1.0]), 7), [1.38, 0.1])
-    assert np.allclose(lander.centroid(np.array([0.0, 0.0]), 9), [0.0, 0.0])  # a gap
+    assert s.centroid_gate(10) == pytest.approx(10 * steady_sigma(0.1) / math.sqrt(10))
+    lander = Lander(dataclasses.replace(s, gate_sigmas=math.inf), 0.1)
+    assert np.allclose(lander.centroid(np.array([1.0, 0.0]), 5, 10), [1.0, 0.0])
+    assert np.allclose(lander.centroid(np.array([2.0, 0.0]), 6, 10), [1.1, 0.0])
+    assert np.allclose(lander.centroid(np.array([3.0, 0.0]), 6, 10), [1.2, 0.0])  # redone
+    assert np.allclose(lander.centroid(np.array([3.0, 1.0]), 7, 10), [1.38, 0.1])
+    assert np.allclose(lander.centroid(np.array([0.0, 0.0]), 9, 10), [0.0, 0.0])  # a gap
     lander.reset()
-    assert np.allclose(lander.centroid(np.array([4.0, 4.0]), 10), [4.0, 4.0])
+    assert np.allclose(lander.centroid(np.array([4.0, 4.0]), 10, 10), [4.0, 4.0])
     rng = np.random.default_rng(2)  # noise on the centroid seen: the average keeps less
-    seen = rng.normal(0.0, 0.03, (200, 2))
-    avg = np.array([lander.centroid(z, 11 + t) for t, z in enumerate(seen)])[50:]
-    assert avg.std() < 0.4 * seen.std()
+    gated = Lander(s, 0.1)
+    sigma_c = steady_sigma(0.1) / math.sqrt(10)
+    seen = rng.normal(0.0, sigma_c, (200, 2))
+    avg = np.array([gated.centroid(z, 11 + t, 10) for t, z in enumerate(seen)])[50:]
+    assert avg.std() < 0.5 * seen.std()
+    m = gated.centroid(np.array([1.0, 0.0]), 211, 10)  # the team has moved: followed at once
+    assert np.allclose(m, [1.0, 0.0])
     # the landing plan: the pattern centred on the centroid, K steps at full speed
     pos = np.array([[0.0, 0.0], [0.5, 0.0]])
     target, k = centroid_targets(pos, np.array([[10.0, 0.0], [10.4, 0.0]]),
