@@ -8,11 +8,14 @@ gives each robot of each env what its robot process gives its brain
 :class:`runtime.decision.local.Perception` with the estimator on):
 
 1. its view under the conditions, through its own peer tracker (the positions as sensed,
-   smoothed, and the tracker's velocities);
+   smoothed, late views carried along the robot's plan of the team for the plan
+   observation, and the tracker's velocities);
 2. its own assignment of the pattern to that team (with hysteresis and warm potentials,
    per robot);
 3. its slot: the centroid frame (general) or the synchronised plan's frame (plan), which
-   under noise lands in the centroid frame for the last ``Settle.centroid_steps`` steps;
+   under noise lands in the centroid frame, averaged over the landing's steps, for the last
+   ``Settle.centroid_steps`` steps; and its way left to that slot (``to_slot``), by which
+   the world damps its landing;
 4. its row, built by the rows every robot builds (:func:`general_observation`).
 
 A robot whose episode starts (a reset) has its roll call: its first row is built from the
