@@ -130,8 +130,10 @@ def test_link_cut_for_2_s_and_restored(net: Net, swarm: tuple[str, Path],
                    timeout=30)
     subprocess.run(["ip", "-n", w, "link", "set", w_end, "up"], check=True, timeout=30)
     log = tmp_path / "cut.mcap"
+    # the world steps on 300 steps after the circle forms (in about 40): the cut falls within
+    # the run even when a busy machine delays the watcher by tens of steps
     world = start_world(net, w, name, keys_dir, log, "-l", f"tls/10.231.1.1:{PORT}",
-                        "-l", f"tls/10.231.9.2:{PORT}")
+                        "-l", f"tls/10.231.9.2:{PORT}", "--hold-steps", "300")
     # the watcher is connected before any robot starts, so the world (waiting for its robots)
     # cannot run ahead of it however busy the machine is
     watcher = StepWatcher(keys_dir, name, f"tls/10.231.9.2:{PORT}")
