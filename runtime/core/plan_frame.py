@@ -42,6 +42,7 @@ __all__ = [
     "min_enclosing_circle",
     "plan_frame",
     "plan_frames",
+    "steps_left",
 ]
 
 _STEP_TOL = cython.declare(cython.double, 1e-9)
@@ -417,3 +418,11 @@ def plan_frames(pos: Any, pts: Any, travel_weight: float, reach: float, t_out: A
         T[2 * e] = tx
         T[2 * e + 1] = ty
         Kv[e] = K
+
+
+def steps_left(far_m: Any, reach: float) -> Any:
+    """The steps ``K`` a plan has left when its farthest robot is ``far_m`` (m, a number or
+    an array) from its slot at ``reach`` m a step, as :func:`plan_frame` counts them:
+    ``max(1, ceil(far / reach - STEP_TOL))`` (a NaN way: 1)."""
+    q = np.asarray(far_m, dtype=np.float64) / reach - STEP_TOL
+    return np.where(q > 1.0, np.ceil(np.where(q > 1.0, q, 1.0)), 1.0)

@@ -72,7 +72,7 @@ from typing import Any
 import numpy as np
 
 from runtime.conditions import Conditions
-from runtime.core.plan_frame import STEP_TOL
+from runtime.core.plan_frame import steps_left
 from runtime.decision.estimator import steady_sigma
 from runtime.types import Array
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -201,8 +201,7 @@ def centroid_targets(pos: Array, points: Array, centroid: Array,
     target: Array = p - p.mean(axis=-2, keepdims=True) + np.asarray(centroid)[..., None, :]
     d = target - np.asarray(pos, dtype=np.float64)
     far = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2).max(axis=-1)
-    q = far / (world.v_max_mps * world.dt_s) - STEP_TOL
-    k: Array = np.where(q > 1.0, np.ceil(np.where(q > 1.0, q, 1.0)), 1.0)
+    k: Array = steps_left(far, world.v_max_mps * world.dt_s)
     return target, k
 
 
