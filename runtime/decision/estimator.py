@@ -156,7 +156,7 @@ class PeerTracker:
         self.planned: Array = np.zeros((0, 0, 2))
         self._plan: Array | None = None
         """(plan_steps, B, n, 2) m/s: the plan's velocities of the last steps, newest at
-        ``_plan_at``, NaN where there was none"""
+        ``_plan_at``, 0 where there was none"""
         self._plan_at = 0
 
     def update(self, view: Array, age: IntArray, follow: Array | None = None,
@@ -190,7 +190,7 @@ class PeerTracker:
             if self._z is not None:
                 self._z[r0] = z[r0]
             if self._plan is not None:
-                self._plan[:, r0] = np.nan
+                self._plan[:, r0] = 0.0
         self._restart = None
         if self._x is None or self._x.shape != z.shape or self._v is None \
                 or self._age is None or self._own is None:
@@ -249,24 +249,29 @@ class PeerTracker:
         return self._x.copy(), self._v.copy(), sigma
 
     def _remember_plan(self, follow: Array) -> None:
-        """Keep ``follow`` (B, n, 2), the plan's velocities of the step just gone."""
-        f = np.asarray(follow, dtype=np.float64)
+        """Keep ``follow`` (B, n, 2), the plan's velocities of the step just gone (NaN, no
+        plan: kept as 0, it carries nothing)."""
+        f = np.nan_to_num(np.asarray(follow, dtype=np.float64), nan=0.0)
         if self._plan is None or self._plan.shape[1:] != f.shape:
-            self._plan = np.full((self.plan_steps, *f.shape), np.nan)
+            self._plan = np.zeros((self.plan_steps, *f.shape))
             self._plan_at = 0
         self._plan_at = (self._plan_at - 1) % self.plan_steps
         self._plan[self._plan_at] = f
 
     def _along_plan(self, sensed: Array, age: IntArray) -> Array:
         """``sensed`` (B, n, 2) carried over each one's ``age`` (B, n) steps along the plan's
-        velocities of those steps; a step without a plan (NaN, or older than kept) carries
-        nothing: a brain without a plan reads its peers as sensed."""
+        velocities of those steps; a step without a plan (or older than kept) carries
+        nothing: a brain without a plan reads its peers as sensed. Only the steps some view
+        is that old are read."""
+        out: Array = sensed.copy()
         plan = self._plan
-        if plan is None or not (age > 0).any():
-            return sensed.copy()
-        H = self.plan_steps
-        order = (self._plan_at + np.arange(H)) % H  # newest first
-        within = np.arange(H)[:, None, None] < age[None]  # (H, B, n): the steps since
-        way = np.where(within[..., None], np.nan_to_num(plan[order], nan=0.0), 0.0).sum(axis=0)
-        out: Array = sensed + way * self.world.dt_s
+        steps = 0 if plan is None else min(int(age.max(initial=0)), self.plan_steps)
+        if steps <= 0:
+            return out
+        assert plan is not None
+        way = np.zeros_like(out)
+        for k in range(steps):  # newest first
+            way += np.where((age > k)[..., None], plan[(self._plan_at + k) % self.plan_steps],
+                            0.0)
+        out += way * self.world.dt_s
         return out
