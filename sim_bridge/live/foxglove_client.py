@@ -152,8 +152,11 @@ class FoxgloveClient:
             cid = self._subs.get(sub)
             if cid is not None and cid in self.channels:
                 self._messages.append((self.channels[cid]["topic"], t, data[13:]))
-        elif op == _OP_CLOSE:
-            raise ConnectionError("the server closed the connection")
+        elif op == _OP_CLOSE:  # status code, then the reason (RFC 6455 5.5.1)
+            reason = data[2:].decode(errors="replace") if len(data) >= 2 else ""
+            code = struct.unpack(">H", data[:2])[0] if len(data) >= 2 else None
+            raise ConnectionError(f"the server closed the connection (code {code}"
+                                  + (f": {reason})" if reason else ")"))
         return True
 
     def by_topic(self) -> dict[str, dict[str, Any]]:

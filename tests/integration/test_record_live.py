@@ -9,6 +9,7 @@ arrives; the outside recording replays like the world's own log.
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import re
@@ -17,6 +18,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from collections.abc import Iterator
 from typing import IO, Any
 
 import pytest
@@ -69,6 +71,15 @@ def _stop(p: subprocess.Popen[str], sig: int = signal.SIGINT) -> None:
         p.wait()
 
 
+@contextlib.contextmanager
+def _telling(err: Lines) -> Iterator[None]:
+    """A failure in the block says what the world printed (its warnings, its end)."""
+    try:
+        yield
+    except (ConnectionError, TimeoutError) as e:
+        raise AssertionError(f"{e}; the world said:\n{''.join(err.lines)[-3000:]}") from e
+
+
 def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> None:
     world_log, outside_log = tmp_path / "world.mcap", tmp_path / "outside.mcap"
     port, swarm = free_port(), f"live{os.getpid()}"
@@ -104,7 +115,7 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
              "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2", *tls],
             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
             for i in range(3)]
-        with client:
+        with client, _telling(sim_err):
             chans = client.wait_channels(["/world/scene", "/robot/0/pose"], 60)
             client.subscribe([chans["/world/scene"]["id"], chans["/robot/0/pose"]["id"]])
             got: dict[str, list[Any]] = {"/world/scene": [], "/robot/0/pose": []}
