@@ -74,6 +74,10 @@ class Controller:
         self._lander = Lander(settle, world.dt_s) if settle is not None else None
         self._brain = brain
         self._filter = make_filter(safety, world)
+        self._landed_filter = (  # the guard near the slot (runtime.decision.settle)
+            make_filter(settle.landed_safety(safety), world)
+            if settle is not None and safety is not None and safety.guard_margin_m > 0.0
+            else None)
         self._reach = world.v_max_mps * world.dt_s
         self._rows = GeneralRows(brain.spec.k_neighbours, self._reach)
         self._row: NDArray[Any] = np.zeros((1, 1, self._rows.dim))  # a brain's own input
@@ -216,6 +220,13 @@ class Controller:
         qx, qy = self._cc[int(slots[i])].tolist()
         return qx + cx, qy + cy, None  # == slot_positions(...)[i]
 
+    def _landed(self, steps_left: float | None) -> bool:
+        """Whether the robot is landing under noise within ``landed_m`` of its slot."""
+        lander, way = self._lander, self._to_slot
+        return (lander is not None and steps_left is not None and way is not None
+                and bool(lander.settle.lands_in_centroid(steps_left))
+                and way < lander.settle.landed_m)
+
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
         """Under noise, the last steps of a plan: the team's targets (n, 2) in the frame of
         its centroid as the lander averages it, and the steps left (a 0-d array)."""
@@ -329,7 +340,10 @@ class Controller:
             P = np.asarray(filter_positions, dtype=np.float64)[None]
         ref = None if guard_ref is None else np.ascontiguousarray(guard_ref,
                                                                    dtype=np.float64)[None]
-        vx, vy, changed, change = self._filter.robot(0, i, P, V, px, py, horizon, ref)
+        flt = self._filter
+        if self._landed_filter is not None and self._landed(steps_left):
+            flt = self._landed_filter
+        vx, vy, changed, change = flt.robot(0, i, P, V, px, py, horizon, ref)
         if self._turn is not None:  # what the wheels will drive of it, within the guard
             if math.isfinite(self._heading):
                 fx, fy, _ = diff_drive_step(vx, vy, self._heading, self._turn,

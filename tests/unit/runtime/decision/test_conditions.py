@@ -404,3 +404,31 @@ def test_a_team_on_noisy_views_holds_with_the_tracker_and_the_landing() -> None:
                        conditions=parse_conditions("noise_m=0.05"), estimator=True,
                        progress=False)
     assert r.collisions == 0 and r.formed_rate == 1.0 and r.held_rate >= 2 / 3
+
+
+def test_a_landed_robot_may_close_in_on_its_slot_inside_the_full_guard() -> None:
+    """Two robots at 10 cm of noise, 0.43 m apart on a pattern 0.40 m wide: each is 1.5 cm
+    outside its slot, toward which the full guard (0.45 m between centres) forbids any
+    approach. Landed (in the centroid frame, within ``landed_m``), a robot keeps half the
+    guard's margin and closes in; the full guard alone would keep it where it is."""
+    from runtime.brain.brain import load_brain
+    from runtime.decision.controller import Controller
+    from runtime.decision.safety import make_filter
+    from runtime.decision.settle import settle_for
+    from runtime.world_config import DEFAULT_WORLD
+
+    cond = parse_conditions("noise_m=0.1")
+    settle = settle_for(cond, estimator=True)
+    assert settle is not None
+    safety = uncertainty_params(OrcaParams(), cond)
+    full = make_filter(safety)
+    hard = 2 * (DEFAULT_WORLD.radius_m + safety.radius_margin_m)
+    assert 0.43 < hard + 2 * safety.guard_margin_m < 0.46  # the guard's distance
+    assert hard + 2 * settle.landed_safety(safety).guard_margin_m < 0.40
+    pattern = np.array([[-0.2, 0.0], [0.2, 0.0]])
+    pos = np.array([[-0.215, 0.0], [0.215, 0.0]])
+    ctl = Controller(load_brain("rule:frame-balanced"), safety=safety, settle=settle)
+    vx, vy = ctl.decide(0, pos, pattern, 0, np.zeros((2, 2))).velocity
+    assert vx > 0.01 and abs(vy) < 1e-9  # toward its slot, half the way (the landing's damping)
+    gx, _gy, _changed, _ = full.robot(0, 0, pos[None], np.zeros((1, 2, 2)), vx, vy, 0.1)
+    assert gx < 1e-9  # the full guard: no approach at all
