@@ -32,7 +32,7 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame, plan_velocity
 from runtime.decision.safety import OrcaParams, landing, make_filter
-from runtime.decision.settle import Lander, Settle, centroid_targets
+from runtime.decision.settle import Lander, Settle, centroid_targets, seen_centroid
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -85,6 +85,8 @@ class Controller:
         self._cc: Array = np.zeros((0, 2))
         self._tick = 0  # distinct steps decided (a repeated realtime step is the same)
         self._to_slot: float | None = None  # the robot's way left to its slot under a plan
+        self._me = 0  # the robot deciding, and its raw views (the landing's centroid)
+        self._ref: Array | None = None
         self._team_plan: tuple[Array, Array, float] | Array | None = None
         """The last decision's plan for the team: (targets, positions, steps left), or the
         team rule's velocities; None without a plan (see :attr:`team_velocity`)."""
@@ -231,7 +233,8 @@ class Controller:
         """Under noise, the last steps of a plan: the team's targets (n, 2) in the frame of
         its centroid as the lander averages it, and the steps left (a 0-d array)."""
         assert self._lander is not None
-        m = self._lander.centroid(pos.mean(axis=0), self._tick, len(pos))
+        m = self._lander.centroid(seen_centroid(pos, self._me, self._ref), self._tick,
+                                  len(pos), start=pos.mean(axis=0))
         return centroid_targets(pos, points, m, self.world)
 
     def _act(self, i: int, P: Array, V: Array, slots: IntArray, cx: float, cy: float
@@ -317,6 +320,7 @@ class Controller:
             dy = float(pos[i, 1] - self._frames[1][i, 1])
             if math.hypot(dx, dy) > HEADING_MIN_MOVE_M:
                 self._heading = math.atan2(dy, dx)
+        self._me, self._ref = i, guard_ref  # the raw views, for the landing's centroid
         slots, cx, cy = self._assign(pos)  # 1. assign
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one

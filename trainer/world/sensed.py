@@ -35,7 +35,7 @@ from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
 from runtime.decision.rules import plan_targets, plan_velocity
-from runtime.decision.settle import centroid_targets, settle_for, smooth_centroid
+from runtime.decision.settle import centroid_targets, seen_centroid, settle_for, smooth_centroid
 from runtime.types import Array, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -67,6 +67,7 @@ class SensedRows:
         self._follow: Array | None = None  # (E n, n, 2) each robot's plan of the last step
         self._centroid = np.zeros((E * n, 2))  # each robot's landing centroid (settle.Lander)
         self._landing = np.zeros(E * n, dtype=bool)  # who landed in it last step
+        self._land_k = np.zeros(E * n, dtype=np.int64)  # and for how many steps before
         self.to_slot: Array = np.full((E, n), np.inf)
         """(E, n) m: each robot's way left to its slot under its plan, as of the last rows
         (inf: none), which the training world's damped landing reads."""
@@ -111,10 +112,14 @@ class SensedRows:
             if land.any():  # averaged over the landing's steps (runtime.decision.settle)
                 assert self.settle is not None
                 cont = land & self._landing
-                m = P[land].mean(axis=1)
-                m[cont[land]] = smooth_centroid(self._centroid[cont], m[cont[land]],
-                                                self.settle.centroid_gain,
-                                                self.settle.centroid_gate(n))
+                self._land_k[land] = np.where(cont[land], self._land_k[land] + 1, 0)
+                ref = None if seen.guard_ref is None else seen.guard_ref[land]
+                m = P[land].mean(axis=1)  # a landing starts from the tracker's centroid
+                raw = seen_centroid(P[land], np.tile(self._eye, E)[land], ref)
+                m[cont[land]] = smooth_centroid(
+                    self._centroid[cont], raw[cont[land]],
+                    self.settle.centroid_weight(self._land_k[cont]),
+                    self.settle.centroid_gate(n))
                 self._centroid[land] = m
                 pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
                 G[land], K[land] = centroid_targets(P[land], pts, m, self.world)

@@ -318,27 +318,32 @@ def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None
 
 
 def test_the_landing_averages_the_teams_centroid_over_its_steps() -> None:
-    """A landing's centroid is the running average of the centroids seen on consecutive
-    steps; the same step again (realtime) redoes its own average, a gap or a reset starts
-    from the view, and a centroid seen far beyond its noise moves the average at once."""
+    """A landing's centroid is the running mean of the centroids seen on consecutive steps
+    (each new one weighing at least ``centroid_gain``); the same step again (realtime) redoes
+    its own average, a gap or a reset starts from the view, and a centroid seen far beyond its
+    noise moves the average at once."""
     import dataclasses
 
     from runtime.decision.settle import Lander, centroid_targets, settle_for
 
     s = settle_for(Conditions(noise_m=0.1), estimator=True)
-    assert s is not None and s.centroid_gain == pytest.approx(0.1)
-    assert s.centroid_gate(10) == pytest.approx(10 * steady_sigma(0.1) / math.sqrt(10))
-    lander = Lander(dataclasses.replace(s, gate_sigmas=math.inf), 0.1)
-    assert np.allclose(lander.centroid(np.array([1.0, 0.0]), 5, 10), [1.0, 0.0])
-    assert np.allclose(lander.centroid(np.array([2.0, 0.0]), 6, 10), [1.1, 0.0])
-    assert np.allclose(lander.centroid(np.array([3.0, 0.0]), 6, 10), [1.2, 0.0])  # redone
-    assert np.allclose(lander.centroid(np.array([3.0, 1.0]), 7, 10), [1.38, 0.1])
+    assert s is not None and s.centroid_gain == pytest.approx(0.03)
+    assert s.centroid_gate(10) == pytest.approx(10 * 0.1 / math.sqrt(10))  # the raw noise
+    assert s.centroid_weight(1) == pytest.approx(0.25)  # the start counts as 3 raw views
+    assert s.centroid_weight(1000) == pytest.approx(0.03)
+    lander = Lander(dataclasses.replace(s, gate_sigmas=math.inf, centroid_prior=1.0), 0.1)
+    # a landing starts from the tracker's centroid (start), then the running mean of the raw
+    assert np.allclose(lander.centroid(np.array([9.0, 9.0]), 5, 10, start=np.array([1.0, 0.0])),
+                       [1.0, 0.0])
+    assert np.allclose(lander.centroid(np.array([2.0, 0.0]), 6, 10), [1.5, 0.0])
+    assert np.allclose(lander.centroid(np.array([3.0, 0.0]), 6, 10), [2.0, 0.0])  # redone
+    assert np.allclose(lander.centroid(np.array([3.0, 1.0]), 7, 10), [7 / 3, 1 / 3])
     assert np.allclose(lander.centroid(np.array([0.0, 0.0]), 9, 10), [0.0, 0.0])  # a gap
     lander.reset()
     assert np.allclose(lander.centroid(np.array([4.0, 4.0]), 10, 10), [4.0, 4.0])
     rng = np.random.default_rng(2)  # noise on the centroid seen: the average keeps less
     gated = Lander(s, 0.1)
-    sigma_c = steady_sigma(0.1) / math.sqrt(10)
+    sigma_c = 0.1 / math.sqrt(10)
     seen = rng.normal(0.0, sigma_c, (200, 2))
     avg = np.array([gated.centroid(z, 11 + t, 10) for t, z in enumerate(seen)])[50:]
     assert avg.std() < 0.5 * seen.std()
@@ -351,6 +356,22 @@ def test_the_landing_averages_the_teams_centroid_over_its_steps() -> None:
     assert np.allclose(target, [[0.05, 0.05], [0.45, 0.05]]) and float(k) == 1.0
     target, k = centroid_targets(pos, np.array([[0.0, 0.0], [0.0, 0.4]]), np.array([0.25, 0.0]))
     assert float(k) == 4.0  # the way of the farthest, 0.36 m, at 0.1 m a step
+
+
+def test_the_landing_sees_the_centroid_in_the_raw_views() -> None:
+    """Each peer where it was last sensed (the raw view, which the tracker's smoothing does not
+    lag), the robot itself where it is, the estimate where a view is missing; a batch of
+    robots alike."""
+    from runtime.decision.settle import seen_centroid
+
+    pos = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])  # the tracker's estimates
+    ref = np.full((3, 5), np.nan)
+    ref[0, 0:2] = [5.0, 5.0]  # robot 0's own row: its own position counts
+    ref[1, 0:2] = [1.3, 0.0]
+    assert np.allclose(seen_centroid(pos, 0, ref), [(0 + 1.3 + 0) / 3, 1 / 3])
+    assert np.allclose(seen_centroid(pos, 0, None), pos.mean(axis=0))
+    batch = seen_centroid(np.stack([pos, pos]), np.array([0, 1]), np.stack([ref, ref]))
+    assert np.allclose(batch, [[1.3 / 3, 1 / 3], [(5 + 1 + 0) / 3, (5 + 0 + 1) / 3]])
 
 
 def test_the_averaged_landing_centroid_holds_a_team_at_10_cm_of_noise(
