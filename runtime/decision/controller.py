@@ -222,6 +222,20 @@ class Controller:
         qx, qy = self._cc[int(slots[i])].tolist()
         return qx + cx, qy + cy, None  # == slot_positions(...)[i]
 
+    def _filter_velocities(self, V: Array, steps_left: float | None) -> Array:
+        """The team's velocities (1, n, 2) m/s as the safety filter takes them: in a landing
+        under noise, the team's plan (every robot computes the same and follows it; the
+        tracker's estimates lag a team that stops, and the filter dodged peers that had
+        stopped, see :mod:`runtime.decision.settle`); ``V`` otherwise."""
+        lander = self._lander
+        if (lander is None or steps_left is None or self._team_plan is None
+                or not bool(lander.settle.lands_in_centroid(steps_left))):
+            return V
+        plan = self.team_velocity
+        if plan is None or plan.shape != V.shape[1:] or not np.isfinite(plan).all():
+            return V
+        return np.ascontiguousarray(plan[None], dtype=np.float64)
+
     def _landed(self, steps_left: float | None) -> bool:
         """Whether the robot is landing under noise within ``landed_m`` of its slot."""
         lander, way = self._lander, self._to_slot
@@ -347,7 +361,8 @@ class Controller:
         flt = self._filter
         if self._landed_filter is not None and self._landed(steps_left):
             flt = self._landed_filter
-        vx, vy, changed, change = flt.robot(0, i, P, V, px, py, horizon, ref)
+        vx, vy, changed, change = flt.robot(0, i, P, self._filter_velocities(V, steps_left),
+                                            px, py, horizon, ref)
         if self._turn is not None:  # what the wheels will drive of it, within the guard
             if math.isfinite(self._heading):
                 fx, fy, _ = diff_drive_step(vx, vy, self._heading, self._turn,

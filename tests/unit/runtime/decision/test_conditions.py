@@ -453,3 +453,27 @@ def test_a_landed_robot_may_close_in_on_its_slot_inside_the_full_guard() -> None
     assert vx > 0.01 and abs(vy) < 1e-9  # toward its slot, half the way (the landing's damping)
     gx, _gy, _changed, _ = full.robot(0, 0, pos[None], np.zeros((1, 2, 2)), vx, vy, 0.1)
     assert gx < 1e-9  # the full guard: no approach at all
+
+
+def test_a_landing_robot_takes_its_peers_velocities_from_the_plan() -> None:
+    """A team landed on its slots, 0.30 m apart, under 5 cm of noise: the tracker still has the
+    peer coming on at 1 m/s (its estimate lags a peer that stopped). In the landing the filter
+    reads the team's plan (the peer stays), so the robot is not pushed off its slot; with the
+    tracker's velocity it would dodge a peer that is not coming."""
+    from runtime.brain.brain import load_brain
+    from runtime.decision.controller import Controller
+    from runtime.decision.safety import make_filter
+    from runtime.decision.settle import settle_for
+
+    cond = parse_conditions("noise_m=0.05")
+    settle = settle_for(cond, estimator=True)
+    safety = uncertainty_params(OrcaParams(), cond)
+    pattern = np.array([[-0.15, 0.0], [0.15, 0.0]])
+    pos = pattern.copy()
+    stale = np.array([[0.0, 0.0], [-1.0, 0.0]])  # robot 1 seen coming at robot 0
+    ctl = Controller(load_brain("rule:frame-balanced"), safety=safety, settle=settle)
+    d = ctl.decide(0, pos, pattern, 0, stale)
+    assert math.hypot(*d.velocity) < 1e-6 and not d.safety_changed  # stays on its slot
+    dodge = make_filter(settle.landed_safety(safety)).robot(0, 0, pos[None], stale[None], 0.0,
+                                                             0.0, 0.1)
+    assert dodge[0] < -0.05  # the tracker's velocity alone: pushed off towards -x
