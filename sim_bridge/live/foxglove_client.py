@@ -59,6 +59,8 @@ class FoxgloveClient:
         self.channels: dict[int, dict[str, Any]] = {}
         """channel id -> the server's advertisement (topic, encoding, schemaName, schema, ...)"""
         self.server_info: dict[str, Any] = {}
+        self.statuses: list[str] = []
+        """The server's status messages so far (a subscription it refused, ...)."""
         self._subs: dict[int, int] = {}  # subscription id -> channel id
         self._messages: list[tuple[str, int, bytes]] = []
         self._pos = 0
@@ -147,6 +149,8 @@ class FoxgloveClient:
                     self.channels.pop(int(cid), None)
             elif msg.get("op") == "serverInfo":
                 self.server_info = msg
+            elif msg.get("op") == "status":  # the server's warnings and errors, kept
+                self.statuses.append(str(msg.get("message", "")))
         elif op == _OP_BINARY and data and data[0] == 1:
             sub, t = struct.unpack_from("<IQ", data, 1)
             cid = self._subs.get(sub)

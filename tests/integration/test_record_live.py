@@ -126,9 +126,21 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
                 id=1, name=pose_ch["schemaName"], encoding="protobuf",
                 data=base64.b64decode(pose_ch["schema"])))
             assert decode is not None
-            while min(len(v) for v in got.values()) < 3:
-                topic, _t, data = client.next_message(60)
-                got[topic].append(json.loads(data) if topic == "/world/scene" else decode(data))
+            for _attempt in range(120):
+                if min(len(v) for v in got.values()) >= 3:
+                    break
+                try:
+                    topic, _t, data = client.next_message(1.0)
+                except TimeoutError:
+                    # the world steps every few ms: a silent second is a subscription the
+                    # server refused ("unknown channel", seen once): subscribe again
+                    chans = client.by_topic()
+                    client.subscribe([chans[t]["id"] for t in got])
+                    continue
+                if topic in got:
+                    got[topic].append(json.loads(data) if topic == "/world/scene"
+                                      else decode(data))
+            assert min(len(v) for v in got.values()) >= 3, (got.keys(), client.statuses)
         scene = got["/world/scene"][-1]
         assert {"0", "1", "2"} <= {e["id"] for e in scene["entities"]}
         assert all(p.frame_id == "world" for p in got["/robot/0/pose"])
