@@ -222,26 +222,23 @@ class Controller:
         qx, qy = self._cc[int(slots[i])].tolist()
         return qx + cx, qy + cy, None  # == slot_positions(...)[i]
 
-    def _filter_velocities(self, V: Array, steps_left: float | None) -> Array:
-        """The team's velocities (1, n, 2) m/s as the safety filter takes them: in a landing
-        under noise, the team's plan (every robot computes the same and follows it; the
+    def _landing_filter(self, V: Array, steps_left: float | None) -> tuple[Any, Array]:
+        """The safety filter and the team's velocities (1, n, 2) m/s it takes: in a landing
+        under noise the team's plan (every robot computes the same and follows it; the
         tracker's estimates lag a team that stops, and the filter dodged peers that had
-        stopped, see :mod:`runtime.decision.settle`); ``V`` otherwise."""
+        stopped), and within ``landed_m`` of the slot the landed robot's filter (see
+        :mod:`runtime.decision.settle`); the filter and ``V`` otherwise."""
         lander = self._lander
-        if (lander is None or steps_left is None or self._team_plan is None
+        if (lander is None or steps_left is None
                 or not bool(lander.settle.lands_in_centroid(steps_left))):
-            return V
-        plan = self.team_velocity
+            return self._filter, V
+        way = self._to_slot
+        flt = (self._landed_filter if self._landed_filter is not None and way is not None
+               and way < lander.settle.landed_m else self._filter)
+        plan = None if self._team_plan is None else self.team_velocity
         if plan is None or plan.shape != V.shape[1:] or not np.isfinite(plan).all():
-            return V
-        return np.ascontiguousarray(plan[None], dtype=np.float64)
-
-    def _landed(self, steps_left: float | None) -> bool:
-        """Whether the robot is landing under noise within ``landed_m`` of its slot."""
-        lander, way = self._lander, self._to_slot
-        return (lander is not None and steps_left is not None and way is not None
-                and bool(lander.settle.lands_in_centroid(steps_left))
-                and way < lander.settle.landed_m)
+            return flt, V
+        return flt, np.ascontiguousarray(plan[None], dtype=np.float64)
 
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
         """Under noise, the last steps of a plan: the team's targets (n, 2) in the frame of
@@ -358,11 +355,8 @@ class Controller:
             P = np.asarray(filter_positions, dtype=np.float64)[None]
         ref = None if guard_ref is None else np.ascontiguousarray(guard_ref,
                                                                    dtype=np.float64)[None]
-        flt = self._filter
-        if self._landed_filter is not None and self._landed(steps_left):
-            flt = self._landed_filter
-        vx, vy, changed, change = flt.robot(0, i, P, self._filter_velocities(V, steps_left),
-                                            px, py, horizon, ref)
+        flt, Vf = self._landing_filter(V, steps_left)
+        vx, vy, changed, change = flt.robot(0, i, P, Vf, px, py, horizon, ref)
         if self._turn is not None:  # what the wheels will drive of it, within the guard
             if math.isfinite(self._heading):
                 fx, fy, _ = diff_drive_step(vx, vy, self._heading, self._turn,

@@ -67,7 +67,7 @@ lag a peer that stops, and ORCA, which predicts each peer at its velocity, had r
 peers that were no longer coming (a robot pushed 3 cm off its slot in one step, the team
 formed and then not). In the landing every robot computes the same plan for the team and
 follows it, so the filter now takes the peers' velocities from it
-(:meth:`runtime.decision.controller.Controller._filter_velocities`; the guard, which reads
+(:meth:`runtime.decision.controller.Controller._landing_filter`; the guard, which reads
 distances only, is unchanged, and a brain without a plan keeps the tracker's). Measured
 (`rule:frame-balanced` + the tracker, n = 10, 600 episodes per case on seeds apart from the
 table's): 5 cm noise 96.8 % -> 100 %, 10 cm 96.5 % -> 98.5 %, the realistic preset 100 %

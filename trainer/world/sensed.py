@@ -113,11 +113,11 @@ class SensedRows:
                 assert self.settle is not None
                 cont = land & self._landing
                 self._land_k[land] = np.where(cont[land], self._land_k[land] + 1, 0)
-                ref = None if seen.guard_ref is None else seen.guard_ref[land]
                 m = P[land].mean(axis=1)  # a landing starts from the tracker's centroid
-                raw = seen_centroid(P[land], np.tile(self._eye, E)[land], ref)
+                ref = None if seen.guard_ref is None else seen.guard_ref[cont]
+                raw = seen_centroid(P[cont], np.tile(self._eye, E)[cont], ref)
                 m[cont[land]] = smooth_centroid(
-                    self._centroid[cont], raw[cont[land]],
+                    self._centroid[cont], raw,
                     self.settle.centroid_weight(self._land_k[cont]),
                     self.settle.centroid_gate(n))
                 self._centroid[land] = m
