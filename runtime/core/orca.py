@@ -29,7 +29,7 @@ else:
 
     from runtime.core.neighbours import nearest
 
-__all__ = ["CHANGE_TOL_MPS", "MAX_NEIGHBOURS", "OrcaFilter", "clamp_speed"]
+__all__ = ["CHANGE_TOL_MPS", "GUARD_REF_COLUMNS", "MAX_NEIGHBOURS", "OrcaFilter", "clamp_speed"]
 
 RVO_EPS = cython.declare(cython.double, 1e-5)
 """RVO2's tolerance for parallel lines in the linear programs."""
@@ -38,6 +38,8 @@ CHANGE_TOL_MPS = 1e-9
 _CHANGE_TOL = cython.declare(cython.double, 1e-9)  # the same, as a C constant
 MAX_NEIGHBOURS = 64
 """The most neighbours the filter considers (``OrcaParams.max_neighbours``)."""
+GUARD_REF_COLUMNS = 6
+"""The numbers per peer of the guard's references (``guard_ref`` of :meth:`OrcaFilter.robot`)."""
 
 
 GUARD_PASSES = 4
@@ -312,19 +314,21 @@ class OrcaFilter:
         The last-resort guard (``guard_m`` > 0) then bounds, for each neighbour considered,
         the robot's approach to it. ORCA's guarantee rests on both robots predicting each
         other's velocity alike, which noisy and late views break; the guard needs only
-        distances. From the pair as this robot last saw it (``guard_ref`` (E, n, 5): the
-        peer's sensed position, this robot's own pose at that step, and the way the peer may
-        have come since, unseen) at
+        distances. From the pair as this robot last saw it (``guard_ref`` (E, n, 6): the
+        peer's sensed position, this robot's own pose at that step, the way the peer may
+        have come since, unseen, and this robot's share of the room, 0.5 for half) at
         distance ``D`` along ``u``, the robot keeps its own approach along ``u`` since then,
-        this step included, within half the room, ``(D - guard_m) / 2``: two robots that
-        both obey, from views of the same age, end the step at least ``guard_m`` apart along
-        ``u``, whatever either did meanwhile, unseen (latency needs no margin). A pair
+        this step included, within its share of the room, ``share (D - guard_m)``: two
+        robots that both obey, from views of the same age and shares that sum to 1 (both
+        half, or :func:`runtime.decision.safety.guard_shares`), end the step at least
+        ``guard_m`` apart along ``u``, whatever either did meanwhile, unseen (latency needs
+        no margin). A share outside [0, 1] is clipped to it, one not finite is half. A pair
         already inside keeps its distance. The bound holds along ``u`` and along the two
         edges of the cone the peer may lie in, ``asin((guard_m - 2R') / D)``, for the
         error of a noisy view. A peer whose last update was lost (the two robots' views then
         differ in age) is also bounded from where the robot stands now, as if the peer had
         come ``guard_ref[..., 4]`` (m, the way it may have come since it was seen; 0: seen
-        on time) straight at it.
+        on time) straight at it, within half the room.
         Without ``guard_ref`` the pair is taken as it is in ``pos``. The guard projects the
         velocity on each bound in turn (:data:`GUARD_PASSES` rounds), then scales it down
         until every bound holds (zero always does).
@@ -337,7 +341,7 @@ class OrcaFilter:
         if guard_ref is None:
             return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s, self._no_ref)
         if guard_ref.shape[0] != pos.shape[0] or guard_ref.shape[1] != pos.shape[1] \
-                or guard_ref.shape[2] != 5:
+                or guard_ref.shape[2] != GUARD_REF_COLUMNS:
             raise ValueError("ORCA: the guard's references do not fit the positions")
         return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s, guard_ref)
 
@@ -515,11 +519,13 @@ class OrcaFilter:
         sn: cython.double
         cap: cython.double
         has_ref: cython.bint = ref.shape[0] > 0
+        share: cython.double
         rr: cython.Py_ssize_t
         for rr in range(2 * m if has_ref else m):
             c = rr % m
             j = self._ids[a, b, c]
             unseen = 0.0
+            share = 0.5
             if rr >= m:  # a peer whose update was lost: from here, now, to where it was seen,
                 unseen = ref[e, j, 4]  # less the way it may have come meanwhile, unseen
                 if not unseen > 0.0:
@@ -533,6 +539,13 @@ class OrcaFilter:
                 sy = ref[e, j, 3]
                 ux = ref[e, j, 0] - sx
                 uy = ref[e, j, 1] - sy
+                share = ref[e, j, 5]
+                if not isfinite(share):
+                    share = 0.5
+                elif share < 0.0:
+                    share = 0.0
+                elif share > 1.0:
+                    share = 1.0
             else:
                 sx = pos[e, i, 0]
                 sy = pos[e, i, 1]
@@ -544,8 +557,8 @@ class OrcaFilter:
                 continue
             ux = ux / d
             uy = uy / d
-            # half the room there was then, less what this robot has closed since
-            cap = (0.5 * (d - unseen - g) - ((pos[e, i, 0] - sx) * ux
+            # its share of the room there was then, less what this robot has closed since
+            cap = (share * (d - unseen - g) - ((pos[e, i, 0] - sx) * ux
                                              + (pos[e, i, 1] - sy) * uy)) * inv_dt
             if not cap > 0.0:
                 cap = 0.0
@@ -635,7 +648,7 @@ class OrcaFilter:
             raise ValueError("ORCA: robot index does not fit the positions")
         ref = self._no_ref if guard_ref is None else guard_ref
         if ref.shape[0] > 0 and (ref.shape[0] != pos.shape[0] or ref.shape[1] != pos.shape[1]
-                                 or ref.shape[2] != 5):
+                                 or ref.shape[2] != GUARD_REF_COLUMNS):
             raise ValueError("ORCA: the guard's references do not fit the positions")
         k: cython.Py_ssize_t = self._bounds(e, i, 0, 0, self._count[0, 0], pos, ref)
         return self._scale(k, drive_x, drive_y, any_heading)

@@ -241,10 +241,12 @@ class Controller:
         return flt, np.ascontiguousarray(plan[None], dtype=np.float64)
 
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
-        """Under noise, the last steps of a plan: the team's targets (n, 2) in the frame of
-        its centroid as the lander averages it, and the steps left (a 0-d array)."""
+        """Under noise or latency, the last steps of a plan: the team's targets (n, 2) in the
+        frame of its centroid as the lander averages it (seen raw under noise, as carried
+        with exact views), and the steps left (a 0-d array)."""
         assert self._lander is not None
-        m = self._lander.centroid(seen_centroid(pos, self._me, self._ref), self._tick,
+        raw = self._ref if self._lander.settle.sigma_m > 0.0 else None  # exact: as carried
+        m = self._lander.centroid(seen_centroid(pos, self._me, raw), self._tick,
                                   len(pos), start=pos.mean(axis=0))
         return centroid_targets(pos, points, m, self.world)
 
@@ -308,9 +310,9 @@ class Controller:
         last two frames / dt. ``filter_positions``: (n, 2) where the safety filter takes
         the team to be (an estimator's positions carried forward to now), when the brain
         plans from others (the positions as sensed, so that a team does not chase its
-        own extrapolation); None: ``positions``. ``guard_ref``: (n, 5) m, each peer as
-        last sensed, this robot's pose then, and the way the peer may have come since where
-        an update was lost, for the filter's guard
+        own extrapolation); None: ``positions``. ``guard_ref``: (n, 6), each peer as
+        last sensed, this robot's pose then, the way the peer may have come since where
+        an update was lost, and this robot's share of the pair's room, for the filter's guard
         (:class:`runtime.decision.local.Seen`); None: as they are now.
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.

@@ -22,9 +22,10 @@ import numpy as np
 
 from runtime.brain.brain import Brain
 from runtime.conditions import Conditions
+from runtime.core.orca import GUARD_REF_COLUMNS
 from runtime.decision.controller import Controller
 from runtime.decision.estimator import PeerTracker
-from runtime.decision.safety import OrcaParams, uncertainty_params
+from runtime.decision.safety import OrcaParams, guard_shares, uncertainty_params
 from runtime.decision.sensing import Sensor
 from runtime.decision.settle import settle_for
 from runtime.types import Array, BoolArray, IntArray
@@ -54,9 +55,10 @@ class Seen:
     vel: Array | None = None
     """(B, n, 2) m/s: the team's velocities (None: frame differences)."""
     guard_ref: Array | None = None
-    """(B, n, 5) m: each peer as last sensed and where the robot stood when it was, and where
+    """(B, n, 6): each peer as last sensed and where the robot stood when it was (m), where
     the peer's last update was lost (older than the latency) the way it may have come since
-    (its age at full speed; else 0), for the filter's guard
+    (m, its age at full speed; else 0), and the robot's share of the pair's room (0.5: half;
+    :meth:`Perception.perceive`), for the filter's guard
     (:meth:`runtime.core.orca.OrcaFilter.robot`; None: both as they are now)."""
 
     def row(self, b: int) -> Seen:
@@ -89,10 +91,15 @@ class Perception:
         self.tracker = PeerTracker(observer, conditions.noise_m, conditions.latency_steps,
                                    world=world) if tracked else None
         self.observer = np.asarray(observer, dtype=np.int64)
+        self.world = world
         self.reach_m = world.v_max_mps * world.dt_s
         c = conditions
         self._lost_steps = 0 if c.loss <= 0 else c.latency_steps + math.ceil(
             math.log(LOST_TAIL) / math.log(c.loss))
+        self.exact_pairs = self.tracker is not None and c.noise_m <= 0.0 and c.loss <= 0.0
+        """Whether both robots of a pair know it exactly as it was last seen (no noise, no
+        loss), and split the guard's room by need (:func:`guard_shares`)."""
+        self._prev: tuple[Array, IntArray] | None = None  # last step's views and their ages
         self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
         self._own_restart: BoolArray = np.zeros(len(self.observer), dtype=bool)
         self.last_age: IntArray | None = None
@@ -106,6 +113,8 @@ class Perception:
             self.tracker.restart(observers)
         if self._own is not None:
             self._own_restart[np.asarray(observers, dtype=np.int64)] = True
+        if self._prev is not None:  # no last step to take a peer's from
+            self._prev[1][np.asarray(observers, dtype=np.int64)] = -1
 
     @property
     def follows_plans(self) -> bool:
@@ -128,7 +137,9 @@ class Perception:
         view: the tracker's smoothing lags a peer that turns or stops, by up to 10 cm in a
         step, more than the noise it removes) with the robot's own pose at that step (its
         age): both robots of a pair then bound their approach from the same moment,
-        whatever happened since, unseen.
+        whatever happened since, unseen. Where the pair is known exactly
+        (:attr:`exact_pairs`) they split its room by need (:func:`guard_shares`), else
+        half each.
 
         ``follow`` (B, n, 2) m/s, NaN where none: each robot's plan of last step for its
         team (:attr:`runtime.decision.controller.Controller.team_velocity`): with the
@@ -152,7 +163,8 @@ class Perception:
             if self._own_restart.any():
                 self._own[:, self._own_restart] = own[self._own_restart]
                 self._own_restart[:] = False
-        ref = np.empty((*view.shape[:2], 5))
+        ref = np.empty((*view.shape[:2], GUARD_REF_COLUMNS))
+        ref[..., 5] = self._shares(view, age)
         # an update lost: also bounded from now, as if the peer had come all its age's way
         # (a peer out of range, or beyond the k nearest, is far: only loss hides a near one)
         ref[..., 4] = np.where(age > self.conditions.latency_steps,
@@ -167,6 +179,23 @@ class Perception:
             ref[old, 2:4] = np.broadcast_to(own[:, None], now.shape)[old]
         plan = self.tracker.planned if self.estimator else view  # smoothed, along the plan
         return Seen(plan, now, vel, ref)
+
+    def _shares(self, view: Array, age: IntArray) -> Array:
+        """(B, n) each robot's share of the guard's room with each peer: by need
+        (:func:`guard_shares`) where the pair is known exactly (:attr:`exact_pairs`) and the
+        peer's last two views came on time, one step apart; else half. Call it after this
+        step's own pose joined the history."""
+        share = np.full(view.shape[:2], 0.5)
+        prev, self._prev = self._prev, (view.copy(), np.array(age, dtype=np.int64))
+        late = self.conditions.latency_steps
+        if not self.exact_pairs or prev is None or prev[0].shape != view.shape \
+                or late + 1 >= GUARD_HISTORY_STEPS:
+            return share
+        assert self._own is not None
+        then, before = self._own[late][:, None], self._own[late + 1][:, None]
+        fresh = (age == late) & (prev[1] == late)
+        return np.where(fresh, guard_shares(then - before, view - prev[0], view - then,
+                                            self.world), share)
 
 
 class LocalDecisions:

@@ -442,7 +442,7 @@ def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
     """The neighbour was last seen 0.7 m away, when the robot stood 0.15 m further back: of
     half the room then, (0.7 - G) / 2 = 0.2 m, it has used 0.15, so 0.05 m are left this
     step, whatever the neighbour now seems to do."""
-    ref = [[0.0, 0.0, 0.0, 0.0, 0.0], [0.55, 0.0, -0.15, 0.0, 0.0]]
+    ref = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], [0.55, 0.0, -0.15, 0.0, 0.0, 0.5]]
     vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
     assert vx == pytest.approx(0.05 / DT)
     ref[1][4] = 0.05  # an update lost, and it may have come 5 cm since: from here, now,
@@ -451,6 +451,21 @@ def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
     ref[1][4] = 0.2  # 20 cm: (0.55 - 0.2 - G) / 2 = 0.025 m left, whatever it seems to do now
     vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
     assert vx == pytest.approx(0.025 / DT)
+
+
+@pytest.mark.parametrize(("share", "left_m"), [(0.6, 0.09), (0.3, 0.0), (0.5, 0.05),
+                                               (np.nan, 0.05), (-2.0, 0.0), (0.45, 0.03)])
+def test_the_guard_gives_the_robot_its_share_of_the_room(share: float, left_m: float) -> None:
+    """Seen 0.7 m away with 0.15 m closed since: of ``share`` of the room then,
+    ``share (0.7 - G)``, what is left this step (a share not finite is half, one below 0
+    none); a lost update's bound from here stays at half the room."""
+    ref = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], [0.55, 0.0, -0.15, 0.0, 0.0, share]]
+    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
+    assert vx == pytest.approx(left_m / DT, abs=1e-12)
+    if share == 0.6:  # from here, now: (0.55 - 0.1 - G) / 2 = 0.075 m, less than its share
+        ref[1][4] = 0.1
+        vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
+        assert vx == pytest.approx(0.075 / DT)
 
 
 def test_the_guard_scale_bounds_what_the_wheels_will_drive() -> None:
@@ -481,10 +496,11 @@ def test_the_guard_in_the_source_run_as_python_is_the_compiled_module() -> None:
     for _, pos, vel, pref in crowds(rng):
         n = len(pos)
         P, V = np.ascontiguousarray(pos[None], dtype=np.float64), vel[None].copy()
-        ref = np.zeros((1, n, 5))
+        ref = np.zeros((1, n, 6))
         ref[0, :, 0:2] = pos + rng.normal(0.0, 0.05, (n, 2))
         ref[0, :, 2:4] = pos[rng.integers(0, n, n)]  # some other pose of "its own"
         ref[0, :, 4] = rng.integers(0, 2, n) * rng.uniform(0.0, 0.3, n)
+        ref[0, :, 5] = rng.uniform(-0.1, 1.1, n)  # its share of the room, clipped to [0, 1]
         for r in (None, ref):
             for i in range(n):
                 got = fast.robot(0, i, P, V, *pref[i], 0.75, r)

@@ -210,12 +210,15 @@ def test_tracker_carries_a_lost_update_along_the_plan_and_restarts_without_it() 
     assert np.allclose(tr.planned[0, 1], [1.0, 1.0])  # no plan since the restart, still
 
 
-@pytest.mark.parametrize("spec", ["latency_steps=2", "latency_steps=3", "loss=0.3"])
-def test_a_team_on_a_plan_with_late_exact_views_lands_as_in_the_perfect_world(spec: str) -> None:
+@pytest.mark.parametrize(("spec", "more"), [("latency_steps=2", 1), ("latency_steps=3", 1),
+                                            ("loss=0.3", 0)])
+def test_a_team_on_a_plan_with_late_exact_views_lands_as_in_the_perfect_world(
+        spec: str, more: int) -> None:
     """Exact views, late or gappy, without the safety filter: every robot plans from its
     peers carried along the team's plan, and each episode lands in the very steps of the
     perfect world (planning from the views as sensed took 1.22x the lower bound at 2 steps
-    late, the perfect world 1.05x)."""
+    late, the perfect world 1.05x); late views land in the centroid frame, which may cost
+    the last step once (runtime.decision.settle, "Late views land in the centroid frame")."""
     from runtime.brain.brain import load_brain
     from trainer.evaluate import evaluate_brain
 
@@ -225,7 +228,8 @@ def test_a_team_on_a_plan_with_late_exact_views_lands_as_in_the_perfect_world(sp
         late = evaluate_brain(brain, shape, 10, 3, seed=5, safety=None, estimator=True,
                               conditions=parse_conditions(spec), progress=False)
         assert late.success_rate == 1.0 and late.collisions == 0
-        assert late.episode_stats["steps"] == perfect.episode_stats["steps"], shape
+        steps = np.array(late.episode_stats["steps"]) - perfect.episode_stats["steps"]
+        assert ((steps >= 0) & (steps <= more)).all(), (shape, steps)
 
 
 def test_wheels_gain_noise_and_diff_drive() -> None:
@@ -280,7 +284,8 @@ def test_the_filter_on_the_tracker_keeps_a_noisy_crowd_apart() -> None:
 
 
 @pytest.mark.parametrize(("spec", "bare_collides"), [
-    ("noise_m=0.05", True), ("latency_steps=2", True), ("loss=0.3", True),
+    ("noise_m=0.05", True), ("latency_steps=2", True), ("latency_steps=3", True),
+    ("loss=0.3", True),
     ("gain_noise=0.1,act_noise_mps=0.02", False), ("kinematics=diff,turn_rate_rps=2", True),
     ("realistic", True)])
 def test_a_brain_that_charges_its_nearest_peer_never_reaches_it(spec: str,
@@ -299,11 +304,51 @@ def test_a_brain_that_charges_its_nearest_peer_never_reaches_it(spec: str,
     assert (bare.collisions > 0) == bare_collides
 
 
+@pytest.mark.parametrize(("spec", "by_need"), [("latency_steps=2", True),
+                                               ("gain_noise=0.1,act_noise_mps=0.02", True),
+                                               ("noise_m=0.05", False), ("loss=0.1", False)])
+def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
+                                                                  by_need: bool) -> None:
+    """Each robot of a moving team perceives it on its own (its own sensor and tracker): with
+    exact views, late or on noisy wheels, the two robots of every pair take shares of the
+    guard's room that sum to 1 and differ from half where one was closing faster; under
+    noise or loss, half each. A restart leaves one step of halves (no last step to read)."""
+    from runtime.core.orca import GUARD_REF_COLUMNS
+    from runtime.decision.local import Perception
+
+    n = 4
+    cond = parse_conditions(spec)
+    per = Perception(cond, np.arange(n), [np.random.SeedSequence((3, i)) for i in range(n)],
+                     estimator=True)
+    rng = np.random.default_rng(8)
+    team = rng.uniform(-1.0, 1.0, (n, 2))
+    step = rng.uniform(-0.08, 0.08, (n, 2))
+    step[0] = 0.0  # one stands still
+    for t in range(8):
+        seen = per.perceive(np.repeat(team[None], n, axis=0))
+        assert seen.guard_ref is not None and seen.guard_ref.shape == (n, n, GUARD_REF_COLUMNS)
+        share = seen.guard_ref[..., 5]
+        if t >= cond.latency_steps + 2:
+            pair = share + share.T
+            off = ~np.eye(n, dtype=bool)
+            if by_need:
+                np.testing.assert_allclose(pair[off], 1.0, atol=1e-12)
+                assert np.abs(share[off] - 0.5).max() > 0.2
+            else:
+                np.testing.assert_array_equal(share, 0.5)
+        team = team + step
+    per.restart(np.arange(n))
+    assert (per.perceive(np.repeat(team[None], n, axis=0)).guard_ref[..., 5] == 0.5).all()
+
+
 def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None:
     from runtime.decision.settle import Lander, settle_for
 
     assert settle_for(PRESETS["perfect"]) is None
-    assert settle_for(Conditions(latency_steps=2, loss=0.3)) is None
+    assert settle_for(Conditions(loss=0.3)) is None
+    late = settle_for(Conditions(latency_steps=2, loss=0.3))  # lands in the centroid frame,
+    assert late is not None and late.radius_m == 0.0 and late.sigma_m == 0.0  # undamped
+    assert Lander(late, 0.1).apply(0.2, 0.1, to_slot_m=0.001) == (0.2, 0.1)
     s = settle_for(Conditions(noise_m=0.05), estimator=True)
     assert s is not None and 0 < s.radius_m <= 0.05
     lander = Lander(s, 0.1)

@@ -21,6 +21,7 @@ from runtime.decision.pipeline import commands
 from runtime.decision.safety import (
     FilterResult,
     OrcaParams,
+    guard_shares,
     make_filter,
     orca_filter,
 )
@@ -365,3 +366,28 @@ def test_teams_are_filtered_apart_and_as_one_robot_each() -> None:
     assert np.all(np.hypot(out[..., 0], out[..., 1]) <= W.v_max_mps)
     assert np.allclose(out[np.hypot(pref[..., 0], pref[..., 1]) <= 1.0],
                        pref[np.hypot(pref[..., 0], pref[..., 1]) <= 1.0])
+
+
+@given(st.lists(st.floats(-0.2, 0.2), min_size=6, max_size=6))
+@settings(max_examples=200, deadline=None)
+def test_guard_shares_of_a_pair_sum_to_one(xs: list[float]) -> None:
+    """Both robots of a pair compute their shares from the same numbers, seen from either
+    end: the two always sum to 1, each within [0, 1]."""
+    own, peer, toward = np.array(xs[0:2]), np.array(xs[2:4]), np.array(xs[4:6]) + [0.3, 0.0]
+    a = guard_shares(own, peer, toward)
+    b = guard_shares(peer, own, -toward)
+    assert 0.0 <= a <= 1.0 and a + b == pytest.approx(1.0, abs=1e-12)
+
+
+def test_guard_shares_give_the_room_to_the_robot_that_comes() -> None:
+    """A robot that was closing on a still peer at full speed takes nearly all the room; two
+    still robots, or two that close alike, half each; one moving away while the peer comes
+    leaves nearly all of it to the peer; a pair without a direction or with a number not
+    finite, half."""
+    toward = np.array([[0.5, 0.0]] * 4 + [[0.0, 0.0], [np.nan, 0.0]])
+    own = np.array([[0.1, 0.0], [0.0, 0.0], [0.05, 0.0], [-0.1, 0.0], [0.1, 0.0], [0.1, 0.0]])
+    peer = np.array([[0.0, 0.0], [0.0, 0.0], [-0.05, 0.0], [-0.05, 0.0], [0.0, 0.0],
+                     [0.0, 0.0]])
+    got = guard_shares(own, peer, toward)
+    assert got[0] > 0.95 and got[3] < 0.05
+    np.testing.assert_allclose(got[[1, 2, 4, 5]], 0.5)
