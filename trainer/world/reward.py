@@ -56,6 +56,13 @@ Reward constants (``RewardConfig()``; per robot, per step)
                              filter lets through, so that it is safe without it.
                              Paid by the rollout (:mod:`trainer.rollout`), where
                              the filter runs.
+    proximity_penalty 0.0    per peer closer than ``2R + proximity_m``, growing
+                             linearly from 0 there to this at contact (``2R``):
+                             a dense signal before the sparse collision, for a
+                             brain that is to keep its distance without the
+                             filter (raw). Never paid by a formed pattern whose
+                             slots are ``proximity_m`` or more apart beyond 2R.
+    proximity_m      0.05    that band (m).
     ================ ======= =====================================================
 
     ``PAPER_REWARD`` is eq. 6 alone (no progress term, no bonus).
@@ -81,6 +88,8 @@ class RewardConfig:
     formed_bonus: float = 1.0
     travel_penalty: float = 0.0
     safety_penalty: float = 0.0
+    proximity_penalty: float = 0.0
+    proximity_m: float = 0.05
 
 
 DEFAULT_REWARD = RewardConfig()
@@ -102,6 +111,7 @@ def step_reward(
     reach: float,
     dist_after: Array | None = None,
     X_before: Array | None = None,
+    two_r: float = 0.2,
 ) -> Array:
     """One step's reward per robot, (N, E), robot-major as the training world keeps it.
 
@@ -114,7 +124,8 @@ def step_reward(
     matching's): the progress is then a difference of one per-robot potential, which
     telescopes over an episode, so goals that swap cannot be farmed; None: the distance
     to ``goals_before``. ``X_before`` (2, N, E): positions before the step, for the
-    travel penalty (skipped without them).
+    travel penalty (skipped without them). ``two_r`` (m): the distance between centres at
+    contact, for the proximity penalty.
     """
     reward = cfg.collision_penalty * hits + cfg.step_penalty
     reward += (cfg.beta / reach) * (error_before - error)
@@ -127,7 +138,23 @@ def step_reward(
     if cfg.travel_penalty and X_before is not None:
         moved = X - X_before
         reward -= (cfg.travel_penalty / reach) * np.sqrt(moved[0] * moved[0] + moved[1] * moved[1])
+    if cfg.proximity_penalty:
+        reward -= cfg.proximity_penalty * closeness(X, two_r, cfg.proximity_m)
     if cfg.formed_bonus and formed.any():
         reward[:, formed] += cfg.formed_bonus
     out: Array = reward.astype(np.float64, copy=False)
+    return out
+
+
+def closeness(X: Array, two_r: float, band_m: float) -> Array:
+    """Each robot's closeness to its peers (N, E) from positions ``X`` (2, N, E): the sum
+    over peers of ``1 - (d - two_r) / band_m`` clipped to [0, 1], 0 for a peer ``band_m``
+    or more beyond contact, 1 at contact or closer."""
+    dx = X[0][:, None, :] - X[0][None, :, :]
+    dy = X[1][:, None, :] - X[1][None, :, :]
+    d = np.sqrt(dx * dx + dy * dy)  # (N, N, E)
+    near = np.clip(1.0 - (d - two_r) / band_m, 0.0, 1.0)
+    n = X.shape[1]
+    near[np.arange(n), np.arange(n)] = 0.0
+    out: Array = near.sum(axis=1)
     return out

@@ -570,7 +570,8 @@ class BatchWorld:
         G0, d0, d1 = self._G, self._dist, None  # progress: toward the rank goals, if asked
         if self.rank_goals:
             (G0, d0), d1 = rank_goals(self._X, self._C), rank_goals(X1, self._C)[1]
-        reward = step_reward(cfg, hits, self.error, error, X1, G0, d0, formed, reach, d1, self._X)
+        reward = step_reward(cfg, hits, self.error, error, X1, G0, d0, formed, reach, d1, self._X,
+                             self.world.min_separation_m)
         self._advance(P1, X1, G, dist2, hits, slots, error, reward)
         truncated, done = self._done(formed)  # 6. termination
 

@@ -449,3 +449,21 @@ def test_step_reward_terms() -> None:
     formed = np.array([True])
     r = step_reward(DEFAULT_REWARD, hits, err1, err1, X, goals, dist_before, formed, REACH)
     np.testing.assert_allclose(r[:, 0], [-1.0 - 0.05 + 1.0 + 1.0, -0.05 + 0.0 + 1.0])
+
+
+def test_the_proximity_penalty_grows_from_the_band_to_contact() -> None:
+    """Three robots in a row, 0.22 m and 0.5 m apart (2R = 0.2, band 5 cm): the close pair
+    pays 0.6 of the penalty each (2 cm beyond contact), the far one nothing; off by default."""
+    import dataclasses
+
+    from trainer.world.reward import DEFAULT_REWARD, step_reward
+
+    X = np.array([[[0.0], [0.22], [0.72]], [[0.0], [0.0], [0.0]]])  # (2, N=3, E=1)
+    args = (np.zeros((3, 1), dtype=np.int64), np.zeros(1), np.zeros(1), X, X.copy(),
+            np.zeros((3, 1)), np.array([False]), REACH)
+    cfg = dataclasses.replace(DEFAULT_REWARD, proximity_penalty=2.0, progress_weight=0.0)
+    base = step_reward(dataclasses.replace(cfg, proximity_penalty=0.0), *args, two_r=0.2)
+    r = step_reward(cfg, *args, two_r=0.2)
+    np.testing.assert_allclose((r - base)[:, 0], [-1.2, -1.2, 0.0])
+    np.testing.assert_allclose(step_reward(DEFAULT_REWARD, *args, two_r=0.2),
+                               step_reward(DEFAULT_REWARD, *args))
