@@ -103,11 +103,13 @@ class Perception:
         c = conditions
         self._lost_steps = 0 if c.loss <= 0 else c.latency_steps + math.ceil(
             math.log(LOST_TAIL) / math.log(c.loss))
-        self.exact_pairs = self.tracker is not None and c.noise_m <= 0.0 and c.loss <= 0.0
+        self.exact_pairs = (self.tracker is not None and c.noise_m <= 0.0 and c.loss <= 0.0
+                            and c.own_latency_steps == 0)
         """Whether both robots of a pair know it exactly as it was last seen (no noise, no
-        loss), and split the guard's room by need (:func:`guard_shares`)."""
+        loss, the own pose fresh), and split the guard's room by need (:func:`guard_shares`)."""
         self._prev: tuple[Array, IntArray] | None = None  # last step's views and their ages
         self._share: Array | None = None  # (B, n) last step's shares of the guard's room
+        self._step: int | None = None  # the world step of the last views, where given
         self._own: Array | None = None  # (GUARD_HISTORY_STEPS, B, 2), newest first
         self._own_restart: BoolArray = np.zeros(len(self.observer), dtype=bool)
         self.last_age: IntArray | None = None
@@ -138,7 +140,8 @@ class Perception:
         brain plans from each peer carried over its view's age along it."""
         return self.tracker is not None and self.estimator
 
-    def perceive(self, truth: Array, follow: Array | None = None) -> Seen:
+    def perceive(self, truth: Array, follow: Array | None = None,
+                 step: int | None = None) -> Seen:
         """Each robot's team this step, from the team as it truly is now, ``truth`` (B, n, 2).
 
         With a tracker, the filter's guard pairs each peer's last sensed position (the raw
@@ -153,7 +156,9 @@ class Perception:
         team (:attr:`runtime.decision.controller.Controller.team_velocity`): with the
         estimator the brain plans from each peer carried over its view's age along it
         (:attr:`runtime.decision.estimator.PeerTracker.planned`), and under
-        :attr:`follows_plans` a peer out of view is carried along it."""
+        :attr:`follows_plans` a peer out of view is carried along it. ``step``: the world's
+        step number, where steps may be missed (a robot process): the shares read a peer's
+        last step only from views of consecutive steps (None: every call is the next step)."""
         view, age = self.sensor.sense(truth)
         self.last_age = age
         if self.tracker is None:
@@ -172,7 +177,7 @@ class Perception:
                 self._own[:, self._own_restart] = own[self._own_restart]
                 self._own_restart[:] = False
         ref = np.empty((*view.shape[:2], GUARD_REF_COLUMNS))
-        ref[..., 5] = self._shares(view, age)
+        ref[..., 5] = self._shares(view, age, step)
         # an update lost: also bounded from now, as if the peer had come all its age's way
         # (a peer out of range, or beyond the k nearest, is far: only loss hides a near one)
         ref[..., 4] = np.where(age > self.conditions.latency_steps,
@@ -188,7 +193,7 @@ class Perception:
         plan = self.tracker.planned if self.estimator else view  # smoothed, along the plan
         return Seen(plan, now, vel, ref)
 
-    def _shares(self, view: Array, age: IntArray) -> Array:
+    def _shares(self, view: Array, age: IntArray, step: int | None = None) -> Array:
         """(B, n) each robot's share of the guard's room with each peer: by need
         (:func:`guard_shares`) where the pair is known exactly (:attr:`exact_pairs`) and the
         peer's last two views came on time, one step apart; else half; moving from last
@@ -197,6 +202,7 @@ class Perception:
         history."""
         share = np.full(view.shape[:2], 0.5)
         prev, self._prev = self._prev, (view.copy(), np.array(age, dtype=np.int64))
+        last_step, self._step = self._step, step
         late = self.conditions.latency_steps
         if not self.exact_pairs or prev is None or prev[0].shape != view.shape \
                 or late + 1 >= GUARD_HISTORY_STEPS:
@@ -204,6 +210,8 @@ class Perception:
         assert self._own is not None
         then, before = self._own[late][:, None], self._own[late + 1][:, None]
         fresh = (age == late) & (prev[1] == late)
+        if step is not None and (last_step is None or step != last_step + 1):
+            fresh[:] = False  # a step missed: no last step to read
         want = np.where(fresh, guard_shares(then - before, view - prev[0], view - then,
                                             self.world), share)
         last = share if self._share is None or self._share.shape != want.shape \

@@ -492,7 +492,7 @@ class Robot:
             team = self.controller.team_velocity
             follow = team[None] if team is not None and len(team) == len(positions) else None
             self._perceived = (step.step, self._perception.perceive(
-                np.asarray(positions)[None], follow).row(0))
+                np.asarray(positions)[None], follow, step.step).row(0))
         return self._perceived[1]
 
     def _stage_view(self, step: Step, seen: Seen) -> None:

@@ -306,13 +306,15 @@ def test_a_brain_that_charges_its_nearest_peer_never_reaches_it(spec: str,
 
 @pytest.mark.parametrize(("spec", "by_need"), [("latency_steps=2", True),
                                                ("gain_noise=0.1,act_noise_mps=0.02", True),
-                                               ("noise_m=0.05", False), ("loss=0.1", False)])
+                                               ("noise_m=0.05", False), ("loss=0.1", False),
+                                               ("latency_steps=2,own_latency_steps=1", False)])
 def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
                                                                   by_need: bool) -> None:
     """Each robot of a moving team perceives it on its own (its own sensor and tracker): with
     exact views, late or on noisy wheels, the two robots of every pair take shares of the
     guard's room that sum to 1 and move toward their need by at most ``GUARD_SHARE_RATE`` a
-    step; under noise or loss, half each. A restart starts again from halves."""
+    step; under noise or loss, half each. A missed world step or a restart brings them back
+    toward half."""
     from runtime.core.orca import GUARD_REF_COLUMNS
     from runtime.decision.local import GUARD_SHARE_RATE, Perception
 
@@ -327,15 +329,18 @@ def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
     off = ~np.eye(n, dtype=bool)
     last = np.full((n, n), 0.5)
     most = 0.0  # the farthest any share came from half
-    for _ in range(10):
-        seen = per.perceive(np.repeat(team[None], n, axis=0))
+    for t in (*range(10), 11):  # world steps, the tenth missed (a robot process)
+        seen = per.perceive(np.repeat(team[None], n, axis=0), None, t)
         assert seen.guard_ref is not None and seen.guard_ref.shape == (n, n, GUARD_REF_COLUMNS)
         share = seen.guard_ref[..., 5]
         np.testing.assert_allclose((share + share.T)[off], 1.0, atol=1e-12)
         assert np.abs(share - last).max() <= GUARD_SHARE_RATE + 1e-12
+        if t == 11:  # no last step to read: back toward half
+            gone = np.abs(last - 0.5)
+            assert (np.abs(share - 0.5) <= np.maximum(gone - GUARD_SHARE_RATE, 0) + 1e-12).all()
         last = share.copy()
         most = max(most, float(np.abs(share - 0.5).max()))
-        team = team + step
+        team = team + step * (2 if t == 9 else 1)
     assert (most > 0.25) if by_need else (most == 0.0)
     per.restart(np.arange(n))
     for _ in range(3):  # from halves again
