@@ -242,11 +242,10 @@ class Controller:
 
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
         """Under noise or latency, the last steps of a plan: the team's targets (n, 2) in the
-        frame of its centroid as the lander averages it (seen raw under noise, as carried
-        with exact views), and the steps left (a 0-d array)."""
+        frame of its centroid seen raw, as the lander averages it, and the steps left (a 0-d
+        array)."""
         assert self._lander is not None
-        raw = self._ref if self._lander.settle.sigma_m > 0.0 else None  # exact: as carried
-        m = self._lander.centroid(seen_centroid(pos, self._me, raw), self._tick,
+        m = self._lander.centroid(seen_centroid(pos, self._me, self._ref), self._tick,
                                   len(pos), start=pos.mean(axis=0))
         return centroid_targets(pos, points, m, self.world)
 

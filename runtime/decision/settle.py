@@ -115,14 +115,18 @@ landed team with it. The filter's guard used to hide this by slowing every landi
 the guard lets the robot that arrives take the room a landed peer does not need
 (:func:`runtime.decision.safety.guard_shares`), teams arrive at speed, and a team 3 steps
 late held 88 % of 100 episodes. Landing in the centroid frame, which a team landing in it
-does not move, brings them back: under latency without noise a robot lands in it too, the
-centroid of its team as the tracker carries it along the plan (exact views need neither the
-raw views nor an average; from the raw views, 3 steps old, the landing cost up to 2 steps
-more than planned), undamped (the damping changed nothing there). Without the safety filter
-this costs at most the last step (tests/unit/runtime/decision/test_conditions.py); with it,
+does not move, brings them back: under latency without noise a robot lands in it too, as
+it sees it raw (its peers where last sensed; exact views need no average: the gate is 0),
+undamped (the damping changed nothing there). Without the safety filter this costs up to
+one step less than the views' age (tests/unit/runtime/decision/test_conditions.py); with it,
 measured with the shares on ``benchmarks/conditions.py``'s shapes (n = 10, 20 episodes
 each, `rule:frame-balanced` + the tracker): 3 steps late 1.28x the steps lower bound, all
-held -> 1.15x and 88 % held with the shares alone -> 1.12x, all held, with the landing.
+held -> 1.15x and 88 % held with the shares alone -> 1.13x, all held, with the landing. The
+centroid of the team as the tracker carries it along the plan took fewer steps (1.12x) but
+walked stalled teams away: where the guard holds two robots apart next to their slots, the
+carried centroid counts them where the plan would have put them, the frame moves toward
+it, and the team follows (`launch --robots 8 --conditions latency_steps=3 --estimator`,
+seeds 4-8: 6 of 20 patterns not formed, 3 with the raw centroid, 3 before either change).
 
 :func:`settle_for` sizes it from the noise the robot knows (none in the perfect world,
 which lands as before, to the last bit).

@@ -114,8 +114,7 @@ class SensedRows:
                 cont = land & self._landing
                 self._land_k[land] = np.where(cont[land], self._land_k[land] + 1, 0)
                 m = P[land].mean(axis=1)  # a landing starts from the tracker's centroid
-                ref = (None if seen.guard_ref is None or self.settle.sigma_m <= 0.0
-                       else seen.guard_ref[cont])  # exact views: the team as carried
+                ref = None if seen.guard_ref is None else seen.guard_ref[cont]
                 raw = seen_centroid(P[cont], np.tile(self._eye, E)[cont], ref)
                 m[cont[land]] = smooth_centroid(
                     self._centroid[cont], raw,
