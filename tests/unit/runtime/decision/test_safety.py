@@ -373,7 +373,8 @@ def test_teams_are_filtered_apart_and_as_one_robot_each() -> None:
 def test_guard_shares_of_a_pair_sum_to_one(xs: list[float]) -> None:
     """Both robots of a pair compute their shares from the same numbers, seen from either
     end: the two always sum to 1, each within [0, 1]."""
-    own, peer, toward = np.array(xs[0:2]), np.array(xs[2:4]), np.array(xs[4:6]) + [0.3, 0.0]
+    own, peer = np.array(xs[0:2]), np.array(xs[2:4])
+    toward = np.array(xs[4:6]) + np.array([0.3, 0.0])
     a = guard_shares(own, peer, toward)
     b = guard_shares(peer, own, -toward)
     assert 0.0 <= a <= 1.0 and a + b == pytest.approx(1.0, abs=1e-12)
