@@ -356,6 +356,7 @@ def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None
     assert settle_for(Conditions(loss=0.3)) is None
     late = settle_for(Conditions(latency_steps=2, loss=0.3))  # lands in the centroid frame,
     assert late is not None and late.radius_m == 0.0 and late.sigma_m == 0.0  # undamped
+    assert late.landed_m == math.inf  # every robot in the landing keeps the landed guard
     assert Lander(late, 0.1).apply(0.2, 0.1, to_slot_m=0.001) == (0.2, 0.1)
     s = settle_for(Conditions(noise_m=0.05), estimator=True)
     assert s is not None and 0 < s.radius_m <= 0.05
