@@ -102,7 +102,7 @@ Choices, all documented here:
   made under the shares of the steps before. Under noise or loss each robot keeps half.
   Measured with the landing in the centroid frame (:func:`runtime.decision.settle.settle_for`;
   ``benchmarks/conditions.py``, n = 10, 100 episodes per case, `rule:frame-balanced` + the
-  tracker): 3 steps late 1.26x -> 1.12x the steps lower bound, 2 steps 1.15x -> 1.08x, 1 step
+  tracker): 3 steps late 1.26x -> 1.11x the steps lower bound, 2 steps 1.15x -> 1.08x, 1 step
   1.08x -> 1.07x, all held, and the charging adversary 0 collisions; on other seeds (20
   episodes per shape) ``c`` of 0.5 % of full speed let it collide 0.02 times per episode at
   3 steps late, 2 % and 5 % did not.
