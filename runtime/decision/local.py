@@ -201,10 +201,12 @@ class Perception:
         alike, so the two still sum to 1). Call it after this step's own pose joined the
         history."""
         share = np.full(view.shape[:2], 0.5)
+        if not self.exact_pairs:  # half each: no history to keep
+            return share
         prev, self._prev = self._prev, (view.copy(), np.array(age, dtype=np.int64))
         last_step, self._step = self._step, step
         late = self.conditions.latency_steps
-        if not self.exact_pairs or prev is None or prev[0].shape != view.shape \
+        if prev is None or prev[0].shape != view.shape \
                 or late + 1 >= GUARD_HISTORY_STEPS:
             return share
         assert self._own is not None
