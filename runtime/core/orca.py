@@ -243,6 +243,7 @@ class OrcaFilter:
     keep_right: cython.double
     v_max: cython.double
     guard: cython.double
+    guard_gain: cython.double
     _ids: cython.Py_ssize_t[:, :, ::1]
     _d2: cython.double[:, :, ::1]
     _count: cython.Py_ssize_t[:, ::1]
@@ -255,7 +256,8 @@ class OrcaFilter:
 
     def __init__(self, max_neighbours: int, neighbour_dist_m: float, combined_radius_m: float,
                  dt_s: float, keep_right_rad: float, v_max_mps: float,
-                 hard_radius_m: float = -1.0, guard_m: float = 0.0) -> None:
+                 hard_radius_m: float = -1.0, guard_m: float = 0.0,
+                 guard_gain: float = 0.0) -> None:
         """``max_neighbours`` at most :data:`MAX_NEIGHBOURS` nearest, closer than
         ``neighbour_dist_m`` (m); ``combined_radius_m`` the pair's radius with its margin
         (m); ``dt_s`` the step (s); ``keep_right_rad`` the clockwise turn of a blocked
@@ -264,7 +266,10 @@ class OrcaFilter:
         below which a pair is taken as colliding: between it and ``combined_radius_m`` (the
         margin for a robot's uncertainty) a pair keeps its distance rather than being
         pushed apart within one step; ``guard_m`` (m, 0: none) the distance between centres,
-        as the robot sees them, that the last-resort guard keeps (see :meth:`robot`)."""
+        as the robot sees them, that the last-resort guard keeps (see :meth:`robot`);
+        ``guard_gain`` (>= 0) how much more than commanded the wheels may drive, as a share
+        of the command: the guard's bounds on the command are its bounds on the motion
+        divided by ``1 + guard_gain``."""
         if not 0 <= max_neighbours <= MAX_NEIGHBOURS:
             raise ValueError(f"ORCA considers 0 to {MAX_NEIGHBOURS} neighbours, "
                              f"not {max_neighbours}")
@@ -277,6 +282,7 @@ class OrcaFilter:
         self.keep_right = keep_right_rad
         self.v_max = v_max_mps
         self.guard = guard_m if guard_m > 0.0 else 0.0
+        self.guard_gain = guard_gain if guard_gain > 0.0 else 0.0
         k = max(max_neighbours, 1)
         self._ids = None  # the neighbour tables, made for the first batch's shape
         self._tables(1, 1)
@@ -562,6 +568,7 @@ class OrcaFilter:
                                              + (pos[e, i, 1] - sy) * uy)) * inv_dt
             if not cap > 0.0:
                 cap = 0.0
+            cap = cap / (1.0 + self.guard_gain)  # what the wheels may add to the command
             # the peer may lie off the seen direction by the error the guard allows for
             # (g - hard) and the way it may have come: the seen direction, then both edges
             # of that cone

@@ -171,6 +171,10 @@ class OrcaParams:
     believes of its neighbours' velocities. Negative: no guard (ORCA alone, as in the
     perfect world, where every robot predicts every other exactly);
     :func:`uncertainty_params` sets it to the whole uncertainty bound."""
+    guard_gain: float = 0.0
+    """How much more than commanded the wheels may drive (a share of the command: the
+    wheels' gain spread, ``Conditions.gain_noise``); the guard divides its bounds on the
+    command by ``1 + guard_gain`` (:func:`guard_bound`)."""
     landing: bool = True
     """For a team on a synchronised plan (plan brains, frame rules), the horizon is
     at most the plan's time left, ``K dt`` (see "Landing" in the module docstring
@@ -241,7 +245,7 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     rule + tracker 1.15x -> 1.11x the steps at 2 steps late, 1.26x -> 1.18x at 3). A
     differential drive's sideways error is not in it: the guard bounds what the wheels will
     drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`)."""
-    holonomic = replace(conditions, kinematics="holonomic")
+    holonomic = replace(conditions, kinematics="holonomic", gain_noise=0.0)
     return uncertainty_bound(holonomic, world, GUARD_SIGMAS * conditions.noise_m)
 
 
@@ -297,7 +301,8 @@ def uncertainty_params(params: OrcaParams, conditions: Conditions,
     if conditions == PERFECT:
         return params
     return replace(params, uncertainty_margin_m=uncertainty_margin(conditions, world),
-                   guard_margin_m=guard_bound(conditions, world))
+                   guard_margin_m=guard_bound(conditions, world),
+                   guard_gain=conditions.gain_noise)
 
 
 def make_filter(params: OrcaParams | None, world: WorldConfig = DEFAULT_WORLD) -> OrcaFilter:
@@ -308,7 +313,7 @@ def make_filter(params: OrcaParams | None, world: WorldConfig = DEFAULT_WORLD) -
     combined = hard + 2.0 * p.uncertainty_margin_m
     guard = hard + 2.0 * p.guard_margin_m if p.guard_margin_m >= 0.0 else 0.0
     return OrcaFilter(p.max_neighbours, p.neighbour_dist_m, combined, world.dt_s,
-                      p.keep_right_rad, world.v_max_mps, hard, guard)
+                      p.keep_right_rad, world.v_max_mps, hard, guard, p.guard_gain)
 
 
 @dataclass

@@ -468,6 +468,30 @@ def test_the_guard_gives_the_robot_its_share_of_the_room(share: float, left_m: f
         assert vx == pytest.approx(0.075 / DT)
 
 
+@pytest.mark.parametrize("gain", [0.0, 0.1, 0.3])
+def test_the_guard_leaves_room_for_wheels_that_drive_faster_than_asked(gain: float) -> None:
+    """Wheels that may drive up to ``1 + gain`` of the command: the guard caps the command at
+    its share of the room over ``1 + gain``, so the fastest wheels still keep to it; a pair
+    near the guard's distance (two landing robots) may still close in by short steps, where
+    a full step's gain error added to the guard's distance would stop them."""
+    f = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX, R, G, gain)
+    vel = np.array([[[0.0, 0.0], [1.0, 0.0]]])  # racing away: ORCA lets it follow
+    for ahead in (0.4, 0.31):
+        pos = np.array([[[0.0, 0.0], [ahead, 0.0]]])
+        room = (ahead - G) / 2  # this robot's half, m
+        vx, vy, _, _ = f.robot(0, 0, pos, vel, 1.0, 0.0, 0.75)
+        assert vx == pytest.approx(room / DT / (1.0 + gain))
+        assert vy == pytest.approx(0.0, abs=1e-12)
+        assert vx * (1.0 + gain) * DT <= room + 1e-12  # driven at the highest gain
+        assert f.guard_scale(0, 0, pos, 1.0, 0.0) == pytest.approx(room / DT / (1.0 + gain))
+        short = 0.9 * room / DT / (1.0 + gain)
+        vx, _, _, _ = f.robot(0, 0, pos, vel, short, 0.0, 0.75)
+        assert vx == pytest.approx(short)
+    wide = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX, R, G + 2 * gain * V_MAX * DT)
+    vx, _, _, _ = wide.robot(0, 0, pos, vel, short, 0.0, 0.75)
+    assert vx == pytest.approx(short) if gain == 0.0 else vx == 0.0
+
+
 def test_the_guard_scale_bounds_what_the_wheels_will_drive() -> None:
     """A differential-drive base drives its command along its heading: the scale keeps the
     drive within the guard, and with the heading unknown, any drive the command allows."""
@@ -491,8 +515,13 @@ def test_the_guard_scale_bounds_what_the_wheels_will_drive() -> None:
 def test_the_guard_in_the_source_run_as_python_is_the_compiled_module() -> None:
     py = python_core().orca
     rng = np.random.default_rng(17)
-    args = (10, 2.0, R + 0.02, DT, 0.2, V_MAX, R, G)
-    fast, slow = OrcaFilter(*args), py.OrcaFilter(*args)
+    for gain in (0.0, 0.15):
+        args = (10, 2.0, R + 0.02, DT, 0.2, V_MAX, R, G, gain)
+        _same_guard(OrcaFilter(*args), py.OrcaFilter(*args), rng)
+
+
+def _same_guard(fast: Any, slow: Any, rng: np.random.Generator) -> None:
+    """The two filters' guards agree on random crowds with random references."""
     for _, pos, vel, pref in crowds(rng):
         n = len(pos)
         P, V = np.ascontiguousarray(pos[None], dtype=np.float64), vel[None].copy()
