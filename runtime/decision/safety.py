@@ -83,7 +83,12 @@ Choices, all documented here:
   direction and the two edges of the cone a noisy view leaves. It needs distances only:
   a late or lost view is paired with the robot's own pose of the same age, so latency
   needs no margin; the margin is :data:`GUARD_SIGMAS` of the raw noise plus the wheels'
-  error (:func:`guard_bound`). On a differential-drive base the controller scales the
+  noise (:func:`guard_bound`), and the bounds on the command are divided by one plus the
+  wheels' gain spread (``OrcaParams.guard_gain``), which errs in proportion to the step
+  asked: a landing's short steps keep nearly all their room, where a full step's gain
+  error added to the guard's distance had cost every step of every pair (the realistic
+  preset, rule + tracker: 1.37x -> 1.32x the steps lower bound, n = 10; 1.62x -> 1.46x at
+  n = 25). On a differential-drive base the controller scales the
   command until what the wheels will drive along the heading stays within it
   (:meth:`runtime.core.orca.OrcaFilter.guard_scale`). Measured with the charging adversary
   (``benchmarks/conditions.py``, n = 10, 100 episodes per condition): 0 collisions under 5
@@ -244,7 +249,8 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     2.65 times per episode on views 3 steps late, none with it (the slack costs the frame
     rule + tracker 1.15x -> 1.11x the steps at 2 steps late, 1.26x -> 1.18x at 3). A
     differential drive's sideways error is not in it: the guard bounds what the wheels will
-    drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`)."""
+    drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`); nor is the
+    wheels' gain spread, which bounds the command instead (``OrcaParams.guard_gain``)."""
     holonomic = replace(conditions, kinematics="holonomic", gain_noise=0.0)
     return uncertainty_bound(holonomic, world, GUARD_SIGMAS * conditions.noise_m)
 

@@ -305,6 +305,24 @@ def test_a_brain_that_charges_its_nearest_peer_never_reaches_it(spec: str,
     assert (bare.collisions > 0) == bare_collides
 
 
+@pytest.mark.parametrize("gain", [0.1, 0.3])
+def test_the_wheels_gain_bounds_the_guards_command_not_its_distance(gain: float) -> None:
+    """Wheels whose gain may be off by ``gain``: the guard keeps the distance it keeps without
+    them and divides its bounds on the command by ``1 + gain`` instead, and a team driven at
+    its nearest peers by wheels that far off still never reaches them (ground truth)."""
+    from runtime.decision.safety import guard_bound
+    from trainer.adversary import ChargeBrain
+    from trainer.evaluate import evaluate_brain
+
+    cond = parse_conditions(f"gain_noise={gain},act_noise_mps=0.02")
+    params = uncertainty_params(OrcaParams(), cond)
+    assert params.guard_gain == gain
+    assert params.guard_margin_m == guard_bound(parse_conditions("act_noise_mps=0.02"))
+    r = evaluate_brain(ChargeBrain(), "random", 10, 2, seed=13, conditions=cond,
+                       progress=False, hold_steps=0)
+    assert r.collisions == 0 and r.min_separation_m >= 0.2 - 1e-9
+
+
 @pytest.mark.parametrize(("spec", "by_need"), [("latency_steps=2", True),
                                                ("gain_noise=0.1,act_noise_mps=0.02", True),
                                                ("noise_m=0.05", False), ("loss=0.1", False),
