@@ -305,6 +305,22 @@ def test_a_brain_that_charges_its_nearest_peer_never_reaches_it(spec: str,
     assert (bare.collisions > 0) == bare_collides
 
 
+def test_the_guards_margin_adds_independent_noises_in_quadrature() -> None:
+    """Sensing noise and actuation noise are independent: the guard's margin for both is the
+    root of the sum of their squares (plus the latency's slack, which adds), less than the
+    two margins side by side and more than either."""
+    from runtime.decision.safety import guard_bound
+
+    sense, act = guard_bound(parse_conditions("noise_m=0.05")), guard_bound(
+        parse_conditions("act_noise_mps=0.02"))
+    both = guard_bound(parse_conditions("noise_m=0.05,act_noise_mps=0.02"))
+    assert both == pytest.approx(math.hypot(sense, act))
+    assert max(sense, act) < both < sense + act
+    late = guard_bound(parse_conditions("latency_steps=1"))
+    assert guard_bound(parse_conditions("noise_m=0.05,act_noise_mps=0.02,latency_steps=1")) \
+        == pytest.approx(both + late)
+
+
 @pytest.mark.parametrize("gain", [0.1, 0.3])
 def test_the_wheels_gain_bounds_the_guards_command_not_its_distance(gain: float) -> None:
     """Wheels whose gain may be off by ``gain``: the guard keeps the distance it keeps without
