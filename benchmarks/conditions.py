@@ -43,7 +43,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from runtime.brain.brain import load_brain  # noqa: E402 -- path set-up
-from runtime.conditions import parse_conditions  # noqa: E402
+from runtime.conditions import PRESETS, parse_conditions  # noqa: E402
+from runtime.errors import InputError  # noqa: E402
 from trainer.adversary import ADVERSARY, ChargeBrain  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 
@@ -64,6 +65,18 @@ CASES: dict[str, str] = {
 SHAPES = ("circle", "cross", "heart", "triangle", "random")
 BRAINS = ("rule:assign", "rule:frame", "rule:frame-balanced", "rule:frame-balanced+est",
           "exports/general.onnx+est", ADVERSARY)
+
+
+def split_cases(text: str) -> list[str]:
+    """The cases of ``--cases``: separated by ';' (``"realistic,loss=0;late3"``), or by ','
+    where every part is a case name or a preset (``"late1,late2,combined"``); anything else is
+    one condition spec (``"noise_m=0.05,latency_steps=1"``)."""
+    if ";" in text:
+        return [c.strip() for c in text.split(";") if c.strip()]
+    parts = [c.strip() for c in text.split(",") if c.strip()]
+    if all(c in CASES or c in PRESETS for c in parts):
+        return parts
+    return [text.strip()]
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
@@ -117,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=20, help="episodes per shape (default 20)")
     p.add_argument("--seed", type=int, default=3_000_000, help="world seed (default 3000000)")
     p.add_argument("--cases", default=",".join(CASES),
-                   help=f"comma-separated case names or condition specs (default all: "
+                   help=f"case names or presets separated by ',' or ';', or condition specs "
+                   f"separated by ';' (\"realistic,loss=0;late3\"; default all: "
                    f"{', '.join(CASES)})")
     p.add_argument("--brains", default=",".join(BRAINS),
                    help="comma-separated brains; '+est' adds the estimator, '+naive' runs the "
@@ -130,7 +144,12 @@ def main(argv: list[str] | None = None) -> int:
     episodes = 4 if args.quick else args.episodes
     shapes = ("circle", "heart") if args.quick else tuple(args.shapes.split(","))
     brains = args.brains.split(",")
-    cases = args.cases.split(",")
+    cases = split_cases(args.cases)
+    for case in cases:
+        try:
+            parse_conditions(CASES.get(case, case))
+        except InputError as exc:
+            p.error(f"--cases {case!r}: {exc}")
     t0 = time.perf_counter()
     rows = []
     for case in cases:

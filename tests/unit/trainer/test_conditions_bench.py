@@ -1,0 +1,54 @@
+"""benchmarks/conditions.py: how ``--cases`` reads several cases, and a bad one."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from types import ModuleType
+
+import pytest
+from support import ROOT
+
+
+@pytest.fixture(scope="module")
+def bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("t_conditions_bench",
+                                                  ROOT / "benchmarks" / "conditions.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize(("text", "cases"), [
+    ("late1,late2,combined", ["late1", "late2", "combined"]),
+    ("realistic,harsh", ["realistic", "harsh"]),
+    ("noise_m=0.05,latency_steps=1", ["noise_m=0.05,latency_steps=1"]),
+    ("realistic,loss=0; late3", ["realistic,loss=0", "late3"]),
+    ("late1;", ["late1"]),
+])
+def test_cases_are_names_split_on_commas_or_specs_split_on_semicolons(
+        bench: ModuleType, text: str, cases: list[str]) -> None:
+    assert bench.split_cases(text) == cases
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(ROOT / "benchmarks" / "conditions.py"), *args],
+                          capture_output=True, text=True, timeout=600, check=False)
+
+
+def test_a_spec_of_several_fields_is_one_case_and_a_bad_one_a_one_line_error() -> None:
+    out = _run("--cases", "realistic,loss=0;late1", "--brains", "rule:frame-balanced+est",
+               "--episodes", "1", "--shapes", "circle", "--robots", "7", "--json")
+    assert out.returncode == 0, out.stderr
+    rows = json.loads(out.stdout)["rows"]
+    assert [r["case"] for r in rows] == ["realistic,loss=0", "late1"]
+    assert "loss" not in rows[0]["conditions"] and "noise_m=0.05" in rows[0]["conditions"]
+    assert rows[1]["conditions"].endswith("latency_steps=1")
+    bad = _run("--cases", "noise_m=0.05,bogus=1", "--episodes", "1")
+    assert bad.returncode == 2
+    last = bad.stderr.strip().splitlines()[-1]
+    assert "bogus=1" in last and "Traceback" not in bad.stderr
