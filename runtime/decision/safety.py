@@ -89,13 +89,14 @@ Choices, all documented here:
   error added to the guard's distance had cost every step of every pair. With the sensing
   and actuation noises added in quadrature (:func:`guard_bound`), the realistic preset went
   from 1.37x to 1.30x the steps lower bound (rule + tracker, n = 10, 100 episodes; 1.62x ->
-  1.49x at n = 25), the charging adversary 0 collisions. On a differential-drive base the
-  controller scales the
-  command until what the wheels will drive along the heading stays within it
-  (:meth:`runtime.core.orca.OrcaFilter.guard_scale`). Measured with the charging adversary
-  (``benchmarks/conditions.py``, n = 10, 100 episodes per condition): 0 collisions under 5
-  and 10 cm noise, 1-3 steps late, 30 % lost, noisy wheels, differential drive and the
-  realistic preset; tests/unit/runtime/decision/test_conditions.py holds it per condition.
+  1.49x at n = 25), the charging adversary 0 collisions; 1.25x with every robot of a landing
+  keeping the landed guard (:mod:`runtime.decision.settle`, "The guard near the slot"). On
+  a differential-drive base the controller scales the command until what the wheels will drive
+  along the heading stays within it (:meth:`runtime.core.orca.OrcaFilter.guard_scale`).
+  Measured with the charging adversary (``benchmarks/conditions.py``, n = 10, 100 episodes per
+  condition): 0 collisions under 5 and 10 cm noise, 1-3 steps late, 30 % lost, noisy wheels,
+  differential drive and the realistic preset; tests/unit/runtime/decision/test_conditions.py
+  holds it per condition.
 * **Who needs the room takes it.** Half the room each is the only split two robots agree on
   when their views of the pair differ. Under exact sensing (no noise, no loss: latency and
   wheels only) they do not: both know the pair as it was when last seen to the bit, each

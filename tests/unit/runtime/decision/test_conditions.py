@@ -393,6 +393,7 @@ def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None
     assert late.landed_m == math.inf  # every robot in the landing keeps the landed guard
     assert Lander(late, 0.1).apply(0.2, 0.1, to_slot_m=0.001) == (0.2, 0.1)
     s = settle_for(Conditions(noise_m=0.05), estimator=True)
+    assert s is not None and s.landed_m == math.inf  # under noise too
     assert s is not None and 0 < s.radius_m <= 0.05
     lander = Lander(s, 0.1)
     assert lander.apply(1.0, 0.0) == (1.0, 0.0)  # a full step passes
