@@ -116,10 +116,12 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
 
 
 def _cell(r: dict[str, Any]) -> str:
+    """One row's cell: shares as % to a tenth (99.5 stays 99.5, not 100) and steps to a
+    thousandth (1.304 stays over a 1.3 goal)."""
     def pct(x: float) -> str:
-        return "-" if math.isnan(x) else f"{100 * x:.0f}"
+        return "-" if math.isnan(x) else f"{100 * x:.1f}".removesuffix(".0")
 
-    steps = "-" if math.isnan(r["steps_ratio"]) else f"{r['steps_ratio']:.2f}"
+    steps = "-" if math.isnan(r["steps_ratio"]) else f"{r['steps_ratio']:.3f}"
     return (f"{pct(r['success'])} / {pct(r['formed'])} / {pct(r['held'])} / "
             f"{r['collisions_per_episode']:.2f} / {steps}")
 

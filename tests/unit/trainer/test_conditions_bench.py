@@ -35,6 +35,15 @@ def test_cases_are_names_split_on_commas_or_specs_split_on_semicolons(
     assert bench.split_cases(text) == cases
 
 
+def test_a_cell_rounds_nothing_into_a_pass(bench: ModuleType) -> None:
+    """99.5 % is not shown as 100 %, nor 1.304x the lower bound as 1.30x."""
+    row = {"success": 0.995, "formed": 1.0, "held": 0.995, "collisions_per_episode": 0.0,
+           "steps_ratio": 1.3036}
+    assert bench._cell(row) == "99.5 / 100 / 99.5 / 0.00 / 1.304"
+    none = dict(row, formed=0.0, held=float("nan"), steps_ratio=float("nan"), success=0.0)
+    assert bench._cell(none) == "0 / 0 / - / 0.00 / -"
+
+
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, str(ROOT / "benchmarks" / "conditions.py"), *args],
                           capture_output=True, text=True, timeout=600, check=False)
