@@ -234,7 +234,7 @@ def uncertainty_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD
     reach = world.v_max_mps * world.dt_s
     if sensing_m is None:
         sensing_m = MARGIN_SIGMAS * steady_sigma(conditions.noise_m)
-    late = conditions.latency_steps * reach * 0.25
+    late = _late_m(conditions, world)
     wheels = (conditions.gain_noise * reach + MARGIN_SIGMAS * conditions.act_noise_mps
               * world.dt_s)
     if conditions.kinematics == "diff":
@@ -247,9 +247,9 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     for views as sensed, ``GUARD_SIGMAS`` of the raw noise (the guard reads the raw views,
     see :meth:`runtime.decision.local.Perception.perceive`), and the wheels' actuation noise,
     two independent Gaussian errors whose bounds add in quadrature: the pair's approach is
-    off by the mean of the two robots' view errors plus each one's actuation error, so at
-    5 cm of noise and 2 cm/s of actuation noise their sum (0.057 m per robot) was 0.004 m
-    wider than both together (0.053 m). Latency is in it twice over: the
+    off by the mean of the two robots' view errors plus each one's actuation error (at 5 cm
+    of noise and 2 cm/s of actuation noise 0.053 m per robot, where their sum was 0.057 m).
+    Latency is in it twice over: the
     guard pairs each view with the robot's own pose of its age, so a late or lost view
     needs no margin of its own, and the bound's latency term is kept as slack: without it
     the charging adversary of ``benchmarks/conditions.py`` (n = 10, 100 episodes) collided
@@ -258,11 +258,15 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     differential drive's sideways error is not in it: the guard bounds what the wheels will
     drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`); nor is the
     wheels' gain spread, which bounds the command instead (``OrcaParams.guard_gain``)."""
-    reach = world.v_max_mps * world.dt_s
     sensing = 0.5 * GUARD_SIGMAS * conditions.noise_m * math.sqrt(2.0)
     acting = MARGIN_SIGMAS * conditions.act_noise_mps * world.dt_s
-    late = 0.5 * conditions.latency_steps * reach * 0.25
-    return late + math.hypot(sensing, acting)
+    return 0.5 * _late_m(conditions, world) + math.hypot(sensing, acting)
+
+
+def _late_m(conditions: Conditions, world: WorldConfig) -> float:
+    """The latency's term of the bounds (m, for the pair): a quarter of a full step per
+    step of latency (see :func:`uncertainty_margin`)."""
+    return conditions.latency_steps * world.v_max_mps * world.dt_s * 0.25
 
 
 MARGIN_SIGMAS = 2.0
