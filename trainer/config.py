@@ -77,6 +77,19 @@ class TrainConfig:
     """Train behind the robots' ORCA safety filter (runtime.decision.safety, its
     defaults): the worlds move each robot by the filtered command, as ``eval``, the world and
     the robots do, so a brain learns what the filter will make of its commands."""
+    safety_imitation: float = 0.0
+    """Weight of the safety filter's lesson (0: none). The run keeps the brain it starts from
+    (``--init``; a resumed run: as it was at the resume) as a frozen teacher; each rollout step
+    runs the robots' filter on the teacher's command for every robot's observation, and the
+    policy's mean is fitted to it (squared error in units of v_max times this weight, with the
+    KL penalty, in the surrogate's place: :func:`trainer.ppo.update.update`). The world moves
+    by the policy's own commands (behind the filter with ``train_safety``), so the brain
+    learns, on the states it reaches itself, to do what the filter makes of its teacher, and
+    the run is judged without the filter."""
+    lesson_margin_m: float = 0.06
+    """The radius margin (m) of the filter that gives ``safety_imitation``'s lesson: wider than
+    the robots' own (0.02 m), so that a brain a few centimetres off its lesson still keeps
+    clear of its neighbours."""
     conditions: str = "perfect"
     """The conditions the training world runs (runtime.conditions: a preset or spec); recorded
     in the brain's manifest. The wheels act in the world; under imperfect sensing each robot
@@ -187,6 +200,10 @@ class TrainConfig:
         if self.memory_frames > 1 and self.obs == "paper":
             raise ValueError("the paper observation has its own three frames and no memory "
                              "(--obs general or plan)")
+        if not (math.isfinite(self.safety_imitation) and self.safety_imitation >= 0):
+            raise ValueError(f"safety_imitation must be >= 0, got {self.safety_imitation}")
+        if not (math.isfinite(self.lesson_margin_m) and 0 <= self.lesson_margin_m <= 1):
+            raise ValueError(f"lesson_margin_m must be in [0, 1] m, got {self.lesson_margin_m}")
         if not 0 <= self.hold_steps <= 1000:
             raise ValueError(f"hold_steps must be in 0..1000, got {self.hold_steps}")
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):

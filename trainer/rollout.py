@@ -25,6 +25,7 @@ its own generator seeded from (seed, stage, iteration at the stage's start, w).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -166,13 +167,35 @@ def worker_generator(cfg: TrainConfig, stage: int, it: int, worker: int) -> torc
     return torch.Generator().manual_seed(seed)
 
 
-def behind_filter(vel: Array, bw: BatchWorld) -> Array:
+def behind_filter(vel: Array, bw: BatchWorld, params: OrcaParams = OrcaParams()  # noqa: B008
+                  ) -> Array:
     """The robots' safety filter between the brain and the world (``cfg.train_safety``):
-    :func:`runtime.decision.pipeline.commands` with its defaults, the landing horizon of a plan
-    observation's team included, as ``eval`` and the robots run it."""
+    :func:`runtime.decision.pipeline.commands` with its defaults (or ``params``), the landing
+    horizon of a plan observation's team included, as ``eval`` and the robots run it."""
     steps_left = bw.plan_steps_left if bw.obs_spec.name == "plan" else None  # as observed
-    out: Array = commands(vel, bw.positions, bw.prev_positions, OrcaParams(), bw.world,
+    out: Array = commands(vel, bw.positions, bw.prev_positions, params, bw.world,
                           steps_left)[0]
+    return out
+
+
+def attach_teacher(agent: Agent) -> None:
+    """Give ``agent`` its ``safety_imitation`` teacher: a frozen copy of itself as it is now (an
+    attribute, not a sub-module: it is in no checkpoint and no exported brain)."""
+    teacher = copy.deepcopy(agent)
+    teacher.requires_grad_(False)
+    object.__setattr__(agent, "lesson_teacher", teacher)
+
+
+def safety_lesson(teacher: Agent, x: torch.Tensor, base: torch.Tensor, bw: BatchWorld,
+                  v_max_mps: float, margin_m: float) -> F32Array:
+    """``safety_imitation``'s targets for this step, (E, N, 2) in the policy's units (v_max, the
+    rule's ``base`` removed): the safety filter's command (:func:`behind_filter` with a radius
+    margin of ``margin_m``, the world as it is now) for the teacher's on the same rows ``x``."""
+    E, N = bw.positions.shape[:2]
+    with torch.no_grad():
+        want = teacher.act_team_mps(x, N).numpy().reshape(E, N, 2).astype(np.float64)
+    safe = behind_filter(want, bw, OrcaParams(radius_margin_m=margin_m))
+    out: F32Array = ((safe - base.numpy().reshape(E, N, 2)) / v_max_mps).astype(np.float32)
     return out
 
 
@@ -195,6 +218,7 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     mem = Rollout(T, E, N, agent.feature_dim)  # holds what the normaliser reads
     rows = rows if rows is not None else RowMemory(1, E, N, bw.obs_dim)
     safety_w = reward_for(cfg).safety_penalty
+    teacher = getattr(agent, "lesson_teacher", None) if cfg.safety_imitation else None
     returns: list[float] = []
     success: list[bool] = []
     with torch.no_grad():
@@ -209,6 +233,9 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             base = agent.base_mps(torch.from_numpy(x.reshape(E * N, -1)))  # 0 unless residual
             vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
             moved = behind_filter(vel, bw) if cfg.train_safety else vel
+            lesson = None if teacher is None else safety_lesson(
+                teacher, torch.from_numpy(x.reshape(E * N, -1)), base, bw, v_max_mps,
+                cfg.lesson_margin_m)
             res = bw.step(moved)
             reward = res.reward.copy()
             if cfg.train_safety and safety_w:  # what the filter had to change, per v_max
@@ -226,6 +253,8 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
             mem.add(front.numpy().reshape(E, N, -1), a.numpy().reshape(E, N, 2),
                     mean.numpy().reshape(E, N, 2), std.numpy().reshape(E, N, 2),
                     logp.numpy().reshape(E, N), value.numpy().reshape(E, N), reward, res.done)
+            if lesson is not None:
+                mem.add_lesson(lesson)
             rows.advance(x, res.done)
             obs = res.obs
         o_t = torch.from_numpy(rows.stack(obs).reshape(E * N, -1))
@@ -238,7 +267,11 @@ def join_batches(batches: list[RolloutBatch]) -> RolloutBatch:
     """Several rollouts' samples as one batch (one batch as it is)."""
     if len(batches) == 1:
         return batches[0]
-    return RolloutBatch(*(torch.cat(cols) for cols in zip(*batches, strict=True)))
+    def cat(cols: tuple[torch.Tensor | None, ...]) -> torch.Tensor | None:
+        return None if any(c is None for c in cols) else torch.cat(
+            [c for c in cols if c is not None])
+
+    return RolloutBatch._make(cat(cols) for cols in zip(*batches, strict=True))
 
 
 def collect_parts(agent: Agent, parts: list[WorldPart], gen: torch.Generator,
@@ -282,6 +315,7 @@ __all__ = [
     "RolloutResult",
     "RolloutSource",
     "WorldPart",
+    "attach_teacher",
     "behind_filter",
     "collect_parts",
     "collect_rollout",
@@ -289,6 +323,7 @@ __all__ = [
     "env_shares",
     "join_batches",
     "row_memory",
+    "safety_lesson",
     "stage_parts",
     "stage_world",
     "worker_generator",

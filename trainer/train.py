@@ -75,6 +75,7 @@ from trainer.rollout import (
     InProcessRollouts,
     RolloutMode,
     RolloutSource,
+    attach_teacher,
     behind_filter,
     condition_shares,
     row_memory,
@@ -167,8 +168,9 @@ def evaluate_policy(
 ) -> EvalSummary:
     """Deterministic policy, the first episode of ``episodes`` seeded worlds; behind the safety
     filter when the run trains behind it (``cfg.train_safety``), else without. A run that pays
-    for the filter's changes (``reward.safety_penalty``) trains to be safe without it, and is
-    judged without it. A run under a mixture of conditions is judged on each one's share of
+    for the filter's changes (``reward.safety_penalty``) or takes its lesson
+    (``safety_imitation``) trains to be safe without it, and is judged without it. A run under
+    a mixture of conditions is judged on each one's share of
     the episodes, split as its envs are."""
     parts = [_evaluate_under(agent, cfg, pattern, (a, b), seed, world,
                              cfg.with_(conditions=spec).world_conditions)
@@ -187,7 +189,8 @@ def _evaluate_under(agent: Agent, cfg: TrainConfig, pattern: str, share: tuple[i
                     ) -> tuple[BoolArray, BoolArray, Array, IntArray, Array]:
     """:func:`evaluate_policy`'s episodes ``[a, b)``, all under ``conditions``: success,
     formed, steps, collisions and final error per episode."""
-    filtered = cfg.train_safety and not reward_for(cfg).safety_penalty
+    filtered = (cfg.train_safety and not reward_for(cfg).safety_penalty
+                and not cfg.safety_imitation)
     first, episodes = share[0], share[1] - share[0]
     bw = BatchWorld(
         episodes,
@@ -297,6 +300,8 @@ def train(
             raise InputError(f"a brain with the {cfg.front} front end carries one pattern; "
                              "train it on a named pattern or a points file, not 'random'")
     st = start_state(cfg, obs_spec_for(cfg), plan.world.v_max_mps, ck, plan.init)
+    if cfg.safety_imitation:
+        attach_teacher(st.agent)
     total_eps = plan.episodes * (len(plan.patterns) - st.stage0) if plan.episodes else None
     run = _Run(cfg, plan, artefact_paths(plan.out), time.perf_counter() - st.wall0_s,
                ProgressBar(plan.progress, total_eps, plan.log_every), on_iteration)
@@ -383,8 +388,9 @@ def _evaluate(run: _Run, st: TrainState, sg: _Stage) -> EvalSummary | None:
     ev = evaluate_policy(st.agent, cfg, sg.pattern, cfg.eval_episodes,
                          cfg.seed + cfg.eval_seed_offset, run.plan.world)
     last_stage = sg.index == len(run.plan.patterns) - 1
-    if last_stage and is_better(ev.success_rate, ev.mean_steps, st.best):
-        st.best = best_record(ev.success_rate, ev.mean_steps, st.iteration, st.agent)
+    if last_stage and is_better(ev.success_rate, ev.mean_steps, st.best, ev.collisions):
+        st.best = best_record(ev.success_rate, ev.mean_steps, st.iteration, st.agent,
+                              ev.collisions)
         if run.plan.write_files:
             run.save(st, run.files["best"], run.wall_s(), sg.index)
     return ev
@@ -435,7 +441,8 @@ def _finish(run: _Run, st: TrainState, stopped: str) -> TrainResult:
     if st.best["iteration"] < 0:  # never evaluated: evaluate the final policy once
         ev = evaluate_policy(st.agent, cfg, plan.patterns[-1], cfg.eval_episodes,
                              cfg.seed + cfg.eval_seed_offset, plan.world)
-        st.best = best_record(ev.success_rate, ev.mean_steps, st.iteration, st.agent)
+        st.best = best_record(ev.success_rate, ev.mean_steps, st.iteration, st.agent,
+                              ev.collisions)
     if plan.write_files:
         run.save(st, run.files["checkpoint"], wall, len(plan.patterns) - 1)
         write_curve(run.files["curve_csv"], st.curve)

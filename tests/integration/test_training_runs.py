@@ -165,3 +165,21 @@ def test_a_brain_with_memory_trains_reading_its_older_rows_and_runs_robot_by_rob
     real = evaluate_brain(brain, "circle", 5, 2, seed=1, progress=False,
                           conditions=cfg.world_conditions, estimator=True)
     assert perfect.episodes == real.episodes == 2 and real.collisions == 0
+
+
+def test_a_run_that_takes_the_filters_lesson_keeps_its_teacher_and_exports_the_student(
+        tmp_path: Path) -> None:
+    """``safety_imitation``: the run keeps the brain it started from as a frozen teacher and
+    exports the student alone, which the robot runs as the trained agent acts."""
+    res = _tiny_run(tmp_path, TINY.with_(safety_imitation=5.0), write_files=False)
+    assert res.episodes >= 16 and any(not math.isnan(r["eval_success"]) for r in res.curve)
+    teacher = res.agent.lesson_teacher
+    moved = [not torch.equal(a, b) for a, b in zip(res.agent.policy.parameters(),
+                                                   teacher.policy.parameters(), strict=True)]
+    assert any(moved) and not any(p.requires_grad for p in teacher.parameters())
+    write_brain(res.agent, tmp_path / "b.onnx", BrainManifest(observation=obs_spec_for(TINY)))
+    brain = load_brain(str(tmp_path / "b.onnx"))
+    obs = np.random.default_rng(0).normal(size=(4, obs_spec_for(TINY).input_dim))
+    with torch.no_grad():
+        ref = res.agent.act_mps(torch.from_numpy(obs.astype(np.float32))).numpy()
+    np.testing.assert_allclose(brain.act(obs.astype(np.float32)), ref, atol=1e-5)

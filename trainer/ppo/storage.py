@@ -42,6 +42,7 @@ class RolloutBatch(NamedTuple):
     old_logprob: torch.Tensor  # (S,)
     returns: torch.Tensor  # (S,) value targets Phi
     advantages: torch.Tensor  # (S,)
+    safe_mean: torch.Tensor | None = None  # (S, 2) safety_imitation's target (v_max)
 
 
 class Rollout:
@@ -57,6 +58,7 @@ class Rollout:
         self.rewards = np.zeros(shape, np.float32)
         self.values = np.zeros(shape, np.float32)
         self.dones = np.zeros((steps, n_envs), np.float32)  # episode ended after step t
+        self.safe_mean: F32 | None = None  # (T, E, N, 2) the filter's lesson, where taken
         self.t = 0
 
     def add(
@@ -75,6 +77,12 @@ class Rollout:
         self.logprob[t], self.values[t], self.rewards[t] = logprob, values, rewards
         self.dones[t] = dones
         self.t += 1
+
+    def add_lesson(self, safe_mean: F32) -> None:
+        """``safety_imitation``'s targets for the last step (E, N, 2), units of v_max."""
+        if self.safe_mean is None:
+            self.safe_mean = self.mean.copy()
+        self.safe_mean[self.t - 1] = safe_mean
 
     def batch(
         self, last_values: F32, gamma: float, mode: str = "gae", gae_lambda: float = 0.95
@@ -101,6 +109,7 @@ class Rollout:
             old_logprob=flat(self.logprob),
             returns=flat(returns),
             advantages=flat(adv),
+            safe_mean=None if self.safe_mean is None else flat(self.safe_mean),
         )
 
 

@@ -257,6 +257,11 @@ def test_checkpoint_round_trip_and_the_best_rule(tmp_path) -> None:
     st.best = best_record(0.5, 40.0, 3, st.agent)
     assert is_better(0.5, 30.0, st.best) and not is_better(0.5, 40.0, st.best)
     assert not is_better(0.25, 10.0, st.best)
+    hit = best_record(0.9, 40.0, 4, st.agent, collisions=3)  # 3 touches in the failed tenth
+    assert is_better(0.9, 50.0, hit, collisions=1) and not is_better(0.9, 30.0, hit, 5)
+    assert is_better(0.9, 30.0, hit, 3) and not is_better(0.8, 30.0, hit, 0)
+    old = {k: v for k, v in hit.items() if k != "collisions"}  # an older checkpoint's record
+    assert is_better(0.9, 30.0, old) and not is_better(0.9, 30.0, old, 1)
     st.iteration, st.episodes, st.kl_coef = 3, 17, 0.7
     st.curve = [{"iteration": 3, "stage": 0, "episodes": 17}]
     path = tmp_path / "run.ckpt.pt"
