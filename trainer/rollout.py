@@ -224,18 +224,18 @@ def collect_rollout(agent: Agent, bw: BatchWorld, obs: F32Array, cfg: TrainConfi
     with torch.no_grad():
         for _ in range(T):
             x = rows.stack(obs)  # the row, then the brain's memory of its older rows
-            front = agent.front_features(torch.from_numpy(x.reshape(E * N, -1)), N)
+            xt = torch.from_numpy(x.reshape(E * N, -1))
+            front = agent.front_features(xt, N)
             e = agent.encoder(agent.normaliser(front))
             mean, std = agent.policy(e)
             value = agent.value(e)
             a = mean + std * torch.randn(mean.shape, generator=gen)
             logp = gaussian_logprob(a, mean, std)
-            base = agent.base_mps(torch.from_numpy(x.reshape(E * N, -1)))  # 0 unless residual
+            base = agent.base_mps(xt)  # 0 unless residual
             vel = (a * v_max_mps + base).numpy().reshape(E, N, 2)
             moved = behind_filter(vel, bw) if cfg.train_safety else vel
             lesson = None if teacher is None else safety_lesson(
-                teacher, torch.from_numpy(x.reshape(E * N, -1)), base, bw, v_max_mps,
-                cfg.lesson_margin_m)
+                teacher, xt, base, bw, v_max_mps, cfg.lesson_margin_m)
             res = bw.step(moved)
             reward = res.reward.copy()
             if cfg.train_safety and safety_w:  # what the filter had to change, per v_max
