@@ -36,6 +36,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ sys.path.insert(0, str(ROOT))
 from runtime.brain.brain import load_brain  # noqa: E402 -- path set-up
 from runtime.conditions import PRESETS, parse_conditions  # noqa: E402
 from runtime.errors import InputError  # noqa: E402
+from runtime.world_config import DEFAULT_WORLD, WorldConfig  # noqa: E402
 from trainer.adversary import ADVERSARY, ChargeBrain  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 
@@ -80,7 +82,7 @@ def split_cases(text: str) -> list[str]:
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
-             shapes: tuple[str, ...]) -> dict[str, Any]:
+             shapes: tuple[str, ...], world: WorldConfig = DEFAULT_WORLD) -> dict[str, Any]:
     estimator = brain_name.endswith("+est")
     naive = brain_name.endswith("+naive")
     path = brain_name.removesuffix("+est").removesuffix("+naive")
@@ -91,7 +93,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
                              "steps": 0.0, "wall": 0.0}
     for k, shape in enumerate(shapes):
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
-                           estimator=estimator, progress=False, naive=naive)
+                           estimator=estimator, progress=False, naive=naive, world=world)
         st = r.episode_stats
         formed = [f > 0 for f in st["formed"]]
         held = [h >= 0.9 for h in st["held"]]
@@ -140,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
                    "robot as before it knew its sensing (filter on the raw views and their "
                    "frame differences, no widened margin, no damped landing)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
+    p.add_argument("--spacing", type=float, default=DEFAULT_WORLD.pattern_spacing_m,
+                   metavar="M", help="the shapes' closest pair (m; default "
+                   f"{DEFAULT_WORLD.pattern_spacing_m:g}, the built-ins')")
     p.add_argument("--quick", action="store_true", help="4 episodes, circle and heart")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     args = p.parse_args(argv)
@@ -152,22 +157,25 @@ def main(argv: list[str] | None = None) -> int:
             parse_conditions(CASES.get(case, case))
         except InputError as exc:
             p.error(f"--cases {case!r}: {exc}")
+    if not (math.isfinite(args.spacing) and args.spacing >= DEFAULT_WORLD.min_separation_m):
+        p.error(f"--spacing must be at least 2R = {DEFAULT_WORLD.min_separation_m:g} m")
+    world = replace(DEFAULT_WORLD, pattern_spacing_m=args.spacing)
     t0 = time.perf_counter()
     rows = []
     for case in cases:
         for b in brains:
-            rows.append(run_case(b, case, args.robots, episodes, args.seed, shapes))
+            rows.append(run_case(b, case, args.robots, episodes, args.seed, shapes, world))
             if not args.json:
                 print(f"  {case:<10} {b:<28} {_cell(rows[-1])}", file=sys.stderr, flush=True)
     if args.json:
         print(json.dumps({"robots": args.robots, "episodes_per_shape": episodes,
-                          "shapes": shapes, "rows": rows,
+                          "shapes": shapes, "pattern_spacing_m": args.spacing, "rows": rows,
                           "wall_s": time.perf_counter() - t0},
                          default=lambda x: None))
         return 0
     print(f"\nn = {args.robots}, {episodes} episodes x {len(shapes)} shapes "
-          f"({', '.join(shapes)}); cell: success % / formed % / held % of formed / "
-          f"collisions per episode / steps over the lower bound")
+          f"({', '.join(shapes)}, closest pair {args.spacing:g} m); cell: success % / "
+          f"formed % / held % of formed / collisions per episode / steps over the lower bound")
     w = max(len(b) for b in brains)
     print(f"| case | {' | '.join(f'{b:<{w}}' for b in brains)} |")
     print("|---" * (len(brains) + 1) + "|")

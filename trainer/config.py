@@ -90,6 +90,10 @@ class TrainConfig:
     """The radius margin (m) of the filter that gives ``safety_imitation``'s lesson: wider than
     the robots' own (0.02 m), so that a brain a few centimetres off its lesson still keeps
     clear of its neighbours."""
+    freeze_normaliser: bool = False
+    """Keep the observation normaliser's statistics as the run starts with them (a fine-tune
+    from ``--init``): otherwise the first rollouts' statistics, folded into the brain's, move
+    every input the policy reads before it has taken a step."""
     conditions: str = "perfect"
     """The conditions the training world runs (runtime.conditions: a preset or spec); recorded
     in the brain's manifest. The wheels act in the world; under imperfect sensing each robot

@@ -362,7 +362,8 @@ def _learn(st: TrainState, batch: RolloutBatch, cfg: TrainConfig, lr_scale: floa
     if st.fit_decoder:
         fit_decoder(st.agent, st.opt, batch.obs)
         st.fit_decoder = False
-    st.agent.normaliser.update(batch.obs)
+    if not cfg.freeze_normaliser:
+        st.agent.normaliser.update(batch.obs)
     base_lrs = [cfg.lr_ae, cfg.lr_policy, cfg.lr_value]  # in Optimisers order
     for o_, lr in zip(st.opt, base_lrs, strict=True):
         for g in o_.param_groups if o_ is not None else []:

@@ -65,6 +65,7 @@ from runtime.decision.patterns import (
     pattern_label,
     resample_polyline,
 )
+from runtime.decision.safety import guard_note
 from runtime.log import Log, one_line
 from runtime.types import Array
 from runtime.wire.messages import PatternMsg
@@ -121,6 +122,9 @@ class TeamPattern:
         self._team_n = 0  # the team of the last for_team: a new message must fit it
         self._restarted = False
         self._world_v: int | None = None  # the version of the world's last pattern taken
+        self.guard_m = 0.0
+        """The safety guard's distance (:func:`runtime.decision.safety.guard_distance`): a
+        pattern whose closest pair lies inside it is taken with a warning."""
 
     def _say(self, level: str, msg: str) -> None:
         if self._log is not None:
@@ -215,5 +219,9 @@ class TeamPattern:
         except PatternError as e:
             why = one_line(str(e))
             self._say("warning", why)
+        if pts is not None and n >= 2:
+            note = guard_note(self.guard_m, min_spacing(pts))
+            if note is not None:
+                self._say("warning", note)
         self._cache = (src, n, pts, why)
         return pts, why

@@ -101,7 +101,7 @@ from runtime.decision.controller import Controller
 from runtime.decision.local import Perception, Seen
 from runtime.decision.patterns import PatternError
 from runtime.decision.pipeline import ERR_NONFINITE, Decision
-from runtime.decision.safety import OrcaParams
+from runtime.decision.safety import OrcaParams, guard_distance
 from runtime.decision.settle import settle_for
 from runtime.decision.team_pattern import TeamPattern
 from runtime.errors import InputError
@@ -197,6 +197,7 @@ class Robot:
             decide_on_own_pose=cfg.ros2 is not None,
         )
         self.pattern = TeamPattern(cfg.pattern, world, self.log)
+        self.pattern.guard_m = guard_distance(safety, world)
         self.pattern.use_brain(brain)
         self.swaps = SwapWorker(
             self.id,

@@ -1,14 +1,18 @@
-"""``patternrl patterns``: list the built-ins, or draw one to check a pattern file."""
+"""``patternrl patterns``: list the built-ins, or draw one to check a pattern file; ``show
+--spacing M --save FILE.csv`` writes a pattern spaced wider, for ``--pattern FILE.csv``."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from runtime.decision.patterns import PatternError, describe_builtins, make_pattern, min_spacing
-from runtime.world_config import DEFAULT_WORLD
+from runtime.world_config import DEFAULT_WORLD, MAX_PATTERN_COORD_M
 
 MAX_SHOW_ROBOTS = 10_000
 """Largest team ``show`` resamples and draws (the same bound as ``patternrl keys``)."""
@@ -27,6 +31,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     show.add_argument("pattern", help="a built-in name (see 'list') or a CSV/JSON file of points")
     show.add_argument("--robots", type=int, default=10, help="team size N (default 10)")
     show.add_argument("--out", type=Path, help="draw the targets with their 2R discs to this PNG")
+    show.add_argument("--spacing", type=float, metavar="M",
+                      help="scale the pattern so that its closest pair is M metres apart (the "
+                      f"built-ins: {DEFAULT_WORLD.pattern_spacing_m:g}); wider than the safety "
+                      "guard's distance, neighbours land freely under noisy sensing "
+                      "('patternrl eval' notes when a pattern is inside it)")
+    show.add_argument("--save", type=Path, metavar="FILE.csv",
+                      help="write the points as CSV (x,y per line), for --pattern FILE.csv")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     for q in (listing, show):
         # Also after the action; SUPPRESS keeps a --json given before it from being reset.
@@ -47,11 +58,31 @@ def run(args: argparse.Namespace) -> int:
         print(f"patternrl patterns: --robots must be in 2..{MAX_SHOW_ROBOTS}, got {args.robots}",
               file=sys.stderr)
         return 2
+    spacing = args.spacing
+    if spacing is not None and not (math.isfinite(spacing)
+                                    and spacing >= DEFAULT_WORLD.min_separation_m):
+        print(f"patternrl patterns: --spacing must be at least 2R = "
+              f"{DEFAULT_WORLD.min_separation_m:g} m, got {spacing}", file=sys.stderr)
+        return 2
     try:
         pts = make_pattern(args.pattern, args.robots)
+        if spacing is not None:
+            pts = pts * (spacing / min_spacing(pts))
+            if np.abs(pts).max() > MAX_PATTERN_COORD_M:
+                raise PatternError(f"spaced {spacing:g} m, a coordinate is "
+                                   f"{np.abs(pts).max():.1f} m, beyond the pattern files' "
+                                   f"{MAX_PATTERN_COORD_M:g} m")
     except PatternError as e:
         print(f"patternrl patterns: {e}", file=sys.stderr)
         return 2
+    if args.save is not None:
+        try:
+            args.save.write_text("x,y\n" + "".join(f"{x:.6f},{y:.6f}\n" for x, y in pts),
+                                 encoding="utf-8")
+        except OSError as e:
+            print(f"patternrl patterns: cannot write {args.save}: {e.strerror or e}",
+                  file=sys.stderr)
+            return 2
     info = {
         "pattern": args.pattern,
         "robots": args.robots,
@@ -62,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         _draw(pts, args.out, f"{args.pattern} ({args.robots} robots)")
         info["png"] = str(args.out)
+    if args.save is not None:
+        info["saved"] = str(args.save)
     if args.json:
         print(json.dumps(info))
     else:
@@ -71,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {i:>3}  {x:8.3f} {y:8.3f}")
         if args.out is not None:
             print(f"drawn to {args.out}")
+        if args.save is not None:
+            print(f"saved to {args.save}")
     return 0
 
 

@@ -83,6 +83,15 @@ def test_tiny_model_trains_exports_and_evaluates(tmp_path) -> None:
     assert more.curve[-1]["iteration"] > res.curve[-1]["iteration"]
     tuned = _tiny_run(tmp_path / "ft", init=str(out), write_files=False)
     assert tuned.episodes >= 8
+    # a fine-tune with the normaliser frozen reads its inputs exactly as the brain it started
+    # from did; without, the new rollouts' statistics move them
+    shipped = res.agent.normaliser
+    frozen = _tiny_run(tmp_path / "fz", TINY.with_(freeze_normaliser=True), init=str(out),
+                       write_files=False)
+    for tuned_, same in ((frozen, True), (tuned, False)):
+        norm = tuned_.agent.normaliser
+        assert torch.equal(norm.shift, shipped.shift) is same
+        assert torch.equal(norm.scale, shipped.scale) is same
 
 
 def test_lambda_adapts_during_training(tmp_path) -> None:

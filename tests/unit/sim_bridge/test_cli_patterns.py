@@ -49,3 +49,28 @@ def test_show_json_before_or_after_the_action(
 ) -> None:
     assert main(argv) == 0
     assert len(json.loads(capsys.readouterr().out)["points"]) == 4
+
+
+def test_show_spaces_a_pattern_wider_and_saves_it_for_pattern_file(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from runtime.decision.patterns import make_pattern, min_spacing
+
+    out = tmp_path / "wide.csv"
+    assert main(["patterns", "show", "heart", "--robots", "12", "--spacing", "0.6",
+                 "--save", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["min_spacing_m"] == pytest.approx(0.6) and info["saved"] == str(out)
+    pts = make_pattern(str(out), 12)  # read back as a pattern file: the same shape, wider
+    ref = make_pattern("heart", 12)
+    assert min_spacing(pts) == pytest.approx(0.6, abs=1e-5)
+    assert pts == pytest.approx(ref * (0.6 / min_spacing(ref)), abs=1e-5)
+    for bad, why in (("0.1", "--spacing must be at least 2R"),
+                     ("nan", "--spacing must be at least 2R")):
+        assert main(["patterns", "show", "heart", "--spacing", bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0]
+    assert main(["patterns", "show", "line", "--robots", "5000", "--spacing", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "beyond the pattern files'" in err[0]
+    assert main(["patterns", "show", "heart", "--save", str(tmp_path / "no" / "x.csv")]) == 2
+    assert "cannot write" in capsys.readouterr().err

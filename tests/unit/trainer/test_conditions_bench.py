@@ -61,3 +61,27 @@ def test_a_spec_of_several_fields_is_one_case_and_a_bad_one_a_one_line_error() -
     assert bad.returncode == 2
     last = bad.stderr.strip().splitlines()[-1]
     assert "bogus=1" in last and "Traceback" not in bad.stderr
+
+
+def test_harsh_forms_where_the_shapes_lie_outside_the_guard(bench: ModuleType) -> None:
+    """Under ``harsh`` the guard keeps 0.50 m: a circle of 8 at the built-ins' 0.40 m does not
+    form in these 4 episodes, the same circle at 0.6 m forms in every one."""
+    from dataclasses import replace
+
+    from runtime.world_config import DEFAULT_WORLD
+
+    formed = [bench.run_case("rule:frame-balanced+est", "harsh", 8, 4, 3_000_000, ("circle",),
+                             replace(DEFAULT_WORLD, pattern_spacing_m=sp))["formed"]
+              for sp in (0.4, 0.6)]
+    assert formed[0] < 0.5 and formed[1] == 1.0
+
+
+def test_spacing_widens_the_shapes_and_a_bad_one_is_a_one_line_error() -> None:
+    out = _run("--cases", "perfect", "--brains", "rule:frame-balanced", "--episodes", "1",
+               "--shapes", "circle", "--robots", "6", "--spacing", "0.6", "--json")
+    assert out.returncode == 0, out.stderr
+    d = json.loads(out.stdout)
+    assert d["pattern_spacing_m"] == 0.6 and d["rows"][0]["formed"] == 1.0
+    bad = _run("--spacing", "0.1", "--episodes", "1")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert "--spacing must be at least 2R" in bad.stderr.strip().splitlines()[-1]

@@ -53,3 +53,33 @@ def test_eval_under_conditions_reports_them_and_the_hold(
         "conditions"]
     assert d["estimator"] is True and d["hold_steps"] == 10
     assert 0.0 <= d["success_rate"] <= d["formed_rate"] <= 1.0
+
+
+def test_eval_notes_a_pattern_inside_the_guard_and_a_wider_one_forms(
+    tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Under ``harsh`` the guard keeps robots 0.50 m apart as they see them, wider than the
+    built-ins' 0.40 m: eval says so in one line on stderr, and the JSON on stdout stays
+    whole; the same circle spaced 0.55 m by ``patterns show --spacing --save`` draws no
+    note and forms."""
+    import json
+
+    base = ["eval", "--brain", "rule:frame-balanced", "--robots", "6", "--episodes", "2",
+            "--no-progress", "--json", "--conditions", "harsh", "--estimator"]
+    assert main([*base, "--pattern", "circle"]) == 0
+    out, err = capsys.readouterr()
+    notes = err.strip().splitlines()
+    assert len(notes) == 1 and notes[0].startswith(
+        "patternrl eval: note: the pattern's closest pair is 0.40 m apart, inside the 0.50 m")
+    json.loads(out)
+    wide = tmp_path / "wide.csv"
+    assert main(["patterns", "show", "circle", "--robots", "6", "--spacing", "0.55",
+                 "--save", str(wide)]) == 0
+    capsys.readouterr()
+    assert main([*base, "--pattern", str(wide)]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and json.loads(out)["formed_rate"] > 0.0
+    # the perfect world has no guard, and a filter that is off, nothing to note
+    for extra in (["--conditions", "perfect"], ["--safety", "off"]):
+        assert main([*base, "--pattern", "circle", *extra]) == 0
+        assert capsys.readouterr().err == ""

@@ -321,6 +321,27 @@ def test_the_guards_margin_adds_independent_noises_in_quadrature() -> None:
         == pytest.approx(both + late)
 
 
+@pytest.mark.parametrize("spec", ["harsh", "realistic", "noise_m=0.1"])
+def test_the_guards_distance_is_where_the_filter_stops_an_approach(spec: str) -> None:
+    """``guard_distance``: a robot driving at a still peer a little inside it may not close
+    in at all, a little outside it may; a pattern spaced inside it draws a note."""
+    from runtime.decision.safety import guard_distance, guard_note, make_filter
+
+    params = uncertainty_params(OrcaParams(), parse_conditions(spec))
+    g = guard_distance(params)
+    assert guard_distance(OrcaParams()) == 0.0 and guard_distance(None) == 0.0
+    flt = make_filter(params)
+    vel = np.zeros((1, 2, 2))
+    approach = {}
+    for d in (g - 0.01, g + 0.04):
+        pos = np.array([[[0.0, 0.0], [d, 0.0]]])
+        vx, _, _, _ = flt.robot(0, 0, pos, vel, 0.2, 0.0, 2.0)
+        approach[d] = vx
+    assert approach[g - 0.01] <= 1e-9 < approach[g + 0.04]
+    assert guard_note(g, g - 0.01) is not None and guard_note(g, g + 0.01) is None
+    assert guard_note(0.0, 0.4) is None and guard_note(g, math.nan) is None
+
+
 @pytest.mark.parametrize("gain", [0.1, 0.3])
 def test_the_wheels_gain_bounds_the_guards_command_not_its_distance(gain: float) -> None:
     """Wheels whose gain may be off by ``gain``: the guard keeps the distance it keeps without

@@ -141,3 +141,20 @@ def test_operator_patterns_do_not_move_the_worlds_version() -> None:
     policy.offer(msg(1, "circle", make_pattern("circle", 4)), operator=True)  # before the world
     policy.offer(msg(1, "cross", make_pattern("cross", 4)))  # the world's 1 is not a republish
     np.testing.assert_allclose(policy.for_team(4)[0], make_pattern("cross", 4))
+
+
+def test_a_pattern_inside_the_safety_guard_is_taken_with_a_warning() -> None:
+    said: list[tuple[str, str, str]] = []
+    policy = TeamPattern("circle", log=lambda level, what, text: said.append((level, what, text)))
+    policy.guard_m = 0.5  # the harsh preset's guard, wider than the built-ins' 0.40 m
+    pts, why = policy.for_team(6)
+    assert pts is not None and why == ""
+    warned = [t for level, _, t in said if level == "warning"]
+    assert len(warned) == 1 and "closest pair is 0.40 m apart, inside the 0.50 m" in warned[0]
+    policy.for_team(6)  # the cached target: said once
+    assert len([s for s in said if s[0] == "warning"]) == 1
+    said.clear()
+    policy.guard_m = 0.37  # the realistic preset's: the pattern lies outside it
+    policy.offer(msg(2, "line", make_pattern("line", 6)))
+    assert policy.for_team(6)[0] is not None
+    assert [s for s in said if s[0] == "warning"] == []
