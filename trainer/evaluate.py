@@ -54,9 +54,9 @@ from runtime.brain.brain import Brain, BrainError, load_brain
 from runtime.conditions import PERFECT, Conditions, parse_conditions
 from runtime.decision.formation import min_swept_separation
 from runtime.decision.local import LocalDecisions
-from runtime.decision.patterns import PatternError, make_pattern, min_spacing, pattern_label
+from runtime.decision.patterns import PatternError, make_pattern, pattern_label
 from runtime.decision.pipeline import decide_batch
-from runtime.decision.safety import OrcaParams, guard_distance, guard_note, uncertainty_params
+from runtime.decision.safety import OrcaParams, pattern_guard_note
 from runtime.errors import InputError
 from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.adversary import ADVERSARY, ChargeBrain
@@ -400,18 +400,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def pattern_note(pattern: str | Path, n: int, conditions: Conditions,
-                 safety: OrcaParams | None, world: WorldConfig = DEFAULT_WORLD) -> str | None:
-    """:func:`runtime.decision.safety.guard_note` for ``pattern`` on a team of ``n`` under
-    ``conditions`` (the random shapes: the built-ins' spacing), or None."""
-    if safety is None:
-        return None
-    spacing = world.pattern_spacing_m if str(pattern) == RANDOM_PATTERN else min_spacing(
-        make_pattern(pattern, n, world))
-    return guard_note(guard_distance(uncertainty_params(safety, conditions, world), world),
-                      spacing)
-
-
 def run(args: argparse.Namespace) -> int:
     if args.robots is not None and args.robots < MIN_EVAL_ROBOTS:
         print(f"patternrl eval: --robots must be >= {MIN_EVAL_ROBOTS} (a pattern needs "
@@ -455,7 +443,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     safety = OrcaParams(time_horizon_s=args.orca_time_horizon_s,
                         landing=not args.orca_no_landing) if args.safety == "orca" else None
-    note = pattern_note(pattern, n, conditions, safety)
+    note = pattern_guard_note(None if pattern == RANDOM_PATTERN else make_pattern(pattern, n),
+                              conditions, safety)
     if note is not None:
         print(f"patternrl eval: note: {note}", file=sys.stderr)
     res = evaluate_brain(

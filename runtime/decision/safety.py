@@ -129,6 +129,7 @@ import numpy.typing as npt
 from runtime.conditions import PERFECT, Conditions
 from runtime.core.orca import CHANGE_TOL_MPS, OrcaFilter, clamp_speed
 from runtime.decision.estimator import steady_sigma
+from runtime.decision.patterns import min_spacing
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
@@ -143,6 +144,7 @@ __all__ = [
     "landing",
     "make_filter",
     "orca_filter",
+    "pattern_guard_note",
     "uncertainty_bound",
     "uncertainty_margin",
     "uncertainty_params",
@@ -349,6 +351,19 @@ def guard_note(guard_m: float, spacing_m: float) -> str | None:
     return (f"the pattern's closest pair is {spacing_m:.2f} m apart, inside the {g:.2f} m the "
             f"safety guard keeps between robots under these conditions: neighbours reach "
             f"their slots only where the noise lets them (space it {g:.2f} m or more)")
+
+
+def pattern_guard_note(points: npt.ArrayLike | None, conditions: Conditions,
+                       params: OrcaParams | None = OrcaParams(),
+                       world: WorldConfig = DEFAULT_WORLD) -> str | None:
+    """:func:`guard_note` for a pattern's ``points`` (None: the built-ins' spacing, as the
+    random shapes have it) under ``conditions``, with the filter ``params`` (None: off)."""
+    if params is None:
+        return None
+    spacing = world.pattern_spacing_m if points is None else min_spacing(
+        np.asarray(points, dtype=np.float64))
+    return guard_note(guard_distance(uncertainty_params(params, conditions, world), world),
+                      spacing)
 
 
 def make_filter(params: OrcaParams | None, world: WorldConfig = DEFAULT_WORLD) -> OrcaFilter:

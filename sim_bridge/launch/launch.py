@@ -68,7 +68,9 @@ from typing import IO, Any
 
 from runtime import heap
 from runtime.brain.signing import run_operator_key
-from runtime.decision.patterns import pattern_label
+from runtime.conditions import Conditions
+from runtime.decision.patterns import PatternError, make_pattern, pattern_label
+from runtime.decision.safety import pattern_guard_note
 from runtime.errors import InputError
 from runtime.net.session import (
     add_zenoh_arguments,
@@ -325,6 +327,20 @@ def print_report(res: RunResult, as_json: bool, brains: dict[str, BrainChoice],
 # ------------------------------------------------------------------------ run
 
 
+def guard_notes(patterns: list[str], robots: int, conditions: Conditions) -> list[str]:
+    """One line per note of :func:`runtime.decision.safety.pattern_guard_note`, naming the
+    patterns it is about (a pattern the robots cannot fit is theirs to report)."""
+    about: dict[str, list[str]] = {}
+    for p in dict.fromkeys(patterns):
+        try:
+            note = pattern_guard_note(make_pattern(p, robots), conditions)
+        except PatternError:
+            continue
+        if note is not None:
+            about.setdefault(note, []).append(pattern_label(p))
+    return [f"note: {', '.join(names)}: {note}" for note, names in about.items()]
+
+
 def run(args: argparse.Namespace) -> int:
     swarm = args.swarm or f"launch-{os.getpid()}"
     args.swarm = swarm
@@ -333,6 +349,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         brains, brains_line = pick_brains(args.brains, patterns, args.robots, args.brain_kind)
         cfg = world_config_from_args(args, brains)
+        notes = [] if args.safety == "off" else guard_notes(cfg.patterns, args.robots,
+                                                            cfg.conditions)
         if args.record is not None and not args.no_record:  # refused if it exists (not the demo's)
             check_output(args.record, args.force)
         if args.foxglove is not None:
@@ -435,6 +453,8 @@ def run(args: argparse.Namespace) -> int:
             f"(zenoh {hub} {creds.scheme}/127.0.0.1:{port}{creds.note}), "
             + ("no log" if args.no_record else f"log {record}"))
         say(f"reach this swarm (patternrl record, swap) with: {creds.tool_flags(swarm, port)}")
+        for note in notes:
+            say(note)
         res: RunResult | None = None
         try:
             world.open()  # listening before the robots come: their first status says their brain

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -220,3 +221,19 @@ def test_the_worlds_next_pattern_is_numbered_above_an_operators() -> None:
         pub.undeclare()  # type: ignore[no-untyped-call]
         operator.close()  # type: ignore[no-untyped-call]
         world.close()  # type: ignore[no-untyped-call]
+
+
+def test_launch_notes_the_patterns_inside_the_guard_once(tmp_path: Path) -> None:
+    """``launch --conditions harsh``: one line naming every pattern the guard (0.50 m) keeps
+    its neighbours out of; a pattern spaced wider, and the realistic preset's guard (0.37 m),
+    draw none."""
+    from runtime.conditions import parse_conditions
+    from sim_bridge.launch.launch import guard_notes
+
+    wide = tmp_path / "wide.csv"
+    pts = make_pattern("cross", 8)
+    pts = pts * (0.6 / 0.4)
+    wide.write_text("".join(f"{x},{y}\n" for x, y in pts))
+    harsh = guard_notes(["circle", str(wide), "line", "circle"], 8, parse_conditions("harsh"))
+    assert len(harsh) == 1 and harsh[0].startswith("note: circle, line: the pattern's closest")
+    assert guard_notes(["circle", "line"], 8, parse_conditions("realistic")) == []
