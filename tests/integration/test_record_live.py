@@ -149,7 +149,9 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
         scene = got["/world/scene"][-1]
         assert {"0", "1", "2"} <= {e["id"] for e in scene["entities"]}
         assert all(p.frame_id == "world" for p in got["/robot/0/pose"])
-        out, _ = sim.communicate(timeout=120)
+        assert sim.stdout is not None  # its stderr is Lines' to read: not communicate()'s
+        out = sim.stdout.read()
+        sim.wait(timeout=120)
         assert sim.returncode == 0, sim_err.text()[-2000:]
         _stop(rec)
         assert rec.returncode == 0, rec_err.text()
