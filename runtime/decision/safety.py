@@ -345,12 +345,11 @@ def guard_note(guard_m: float, spacing_m: float) -> str | None:
     patterns' 0.40 m; ``benchmarks/conditions.py --cases harsh``, n = 10, 100 episodes,
     `rule:frame-balanced` + the tracker) the team formed 36 % of episodes; with its shapes
     spaced 0.50 m (``--spacing``) 98 %, 0.55 m 100 %."""
-    g = guard_m
-    if not (g > spacing_m):  # NaN: nothing to say
+    if not (guard_m > spacing_m):  # NaN: nothing to say
         return None
-    return (f"the pattern's closest pair is {spacing_m:.2f} m apart, inside the {g:.2f} m the "
-            f"safety guard keeps between robots under these conditions: neighbours reach "
-            f"their slots only where the noise lets them (space it {g:.2f} m or more)")
+    return (f"the pattern's closest pair is {spacing_m:.2f} m apart, inside the {guard_m:.2f} m "
+            f"the safety guard keeps between robots under these conditions: neighbours reach "
+            f"their slots only where the noise lets them (space it {guard_m:.2f} m or more)")
 
 
 def pattern_guard_note(points: npt.ArrayLike | None, conditions: Conditions,
