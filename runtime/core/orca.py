@@ -291,7 +291,7 @@ class OrcaFilter:
         self._out = np.zeros(2)
         self._found = np.zeros(2)
         self._no_ref = np.zeros((0, 0, 0))
-        self._bound = np.zeros((6 * k, 3))
+        self._bound = np.zeros((6 * k, 4))
 
     def _tables(self, E: int, n: int) -> None:
         """The neighbour tables (E, n, max_neighbours), kept while E and n stay."""
@@ -329,15 +329,19 @@ class OrcaFilter:
         half, or :func:`runtime.decision.safety.guard_shares`), end the step at least
         ``guard_m`` apart along ``u``, whatever either did meanwhile, unseen (latency needs
         no margin). A share outside [0, 1] is clipped to it, one not finite is half. A pair
-        already inside keeps its distance. The bound holds along ``u`` and along the two
+        already inside keeps its distance: a robot with no room left gives back what it has
+        closed since, which its late view let it take (a bound below zero: a retreat), and
+        both robots then end the step no closer than they were seen. The bound holds along ``u`` and along the two
         edges of the cone the peer may lie in, ``asin((guard_m - 2R') / D)``, for the
         error of a noisy view. A peer whose last update was lost (the two robots' views then
         differ in age) is also bounded from where the robot stands now, as if the peer had
         come ``guard_ref[..., 4]`` (m, the way it may have come since it was seen; 0: seen
         on time) straight at it, within half the room.
         Without ``guard_ref`` the pair is taken as it is in ``pos``. The guard projects the
-        velocity on each bound in turn (:data:`GUARD_PASSES` rounds), then scales it down
-        until every bound holds (zero always does).
+        velocity on each bound in turn (:data:`GUARD_PASSES` rounds) and clamps it to v_max;
+        where the rounds do not settle (retreats from two sides at once), it scales the
+        velocity down until every bound holds with its retreats taken as zero (zero always
+        does).
         """
         if not (0 <= e < pos.shape[0] and 0 <= i < pos.shape[1]) \
                 or vel.shape[0] != pos.shape[0] or vel.shape[1] != pos.shape[1]:
@@ -524,6 +528,7 @@ class OrcaFilter:
         cs: cython.double
         sn: cython.double
         cap: cython.double
+        room: cython.double
         has_ref: cython.bint = ref.shape[0] > 0
         share: cython.double
         rr: cython.Py_ssize_t
@@ -563,12 +568,19 @@ class OrcaFilter:
                 continue
             ux = ux / d
             uy = uy / d
-            # its share of the room there was then, less what this robot has closed since
-            cap = (share * (d - unseen - g) - ((pos[e, i, 0] - sx) * ux
-                                             + (pos[e, i, 1] - sy) * uy)) * inv_dt
-            if not cap > 0.0:
+            # its share of the room there was then (none for a pair already inside, which
+            # keeps its distance), less what this robot has closed since: below zero where
+            # it has closed more, in the steps its view was late, and must give that back
+            room = share * (d - unseen - g)
+            if not room > 0.0:
+                room = 0.0
+            cap = (room - ((pos[e, i, 0] - sx) * ux + (pos[e, i, 1] - sy) * uy)) * inv_dt
+            if not isfinite(cap):
                 cap = 0.0
-            cap = cap / (1.0 + self.guard_gain)  # what the wheels may add to the command
+            if cap > 0.0:
+                cap = cap / (1.0 + self.guard_gain)  # what the wheels may add to the command
+            elif self.guard_gain < 1.0:
+                cap = cap / (1.0 - self.guard_gain)  # or take from a retreat
             # the peer may lie off the seen direction by the error the guard allows for
             # (g - hard) and the way it may have come: the seen direction, then both edges
             # of that cone
@@ -585,6 +597,7 @@ class OrcaFilter:
                     out[k, 1] = sn * ux + cs * uy
                     sn = -sn
                 out[k, 2] = cap
+                out[k, 3] = cap if cap > 0.0 else 0.0
                 k += 1
         return k
 
@@ -604,8 +617,8 @@ class OrcaFilter:
             vu = vx * out[c, 0] + vy * out[c, 1]
             if any_heading:
                 vu = 0.5 * (sp + vu)
-            if vu > out[c, 2] and vu * s > out[c, 2]:
-                s = out[c, 2] / vu
+            if vu > out[c, 3] and vu * s > out[c, 3]:
+                s = out[c, 3] / vu
         return s
 
     @cython.cfunc
@@ -632,9 +645,9 @@ class OrcaFilter:
                     vy = vy - over * out[c, 1]
                     moved = True
             if not moved:
-                return vx, vy
+                return _clamp(vx, vy, self.v_max)  # a retreat may ask for more than v_max
         s = self._scale(k, vx, vy, False)  # then scale what is left (zero keeps them all)
-        return vx * s, vy * s
+        return _clamp(vx * s, vy * s, self.v_max)
 
     @cython.ccall
     def guard_scale(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,

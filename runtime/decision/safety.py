@@ -253,18 +253,20 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     two independent Gaussian errors whose bounds add in quadrature: the pair's approach is
     off by the mean of the two robots' view errors plus each one's actuation error (at 5 cm
     of noise and 2 cm/s of actuation noise 0.053 m per robot, where their sum was 0.057 m).
-    Latency is in it twice over: the
+    Latency is not in it: the
     guard pairs each view with the robot's own pose of its age, so a late or lost view
-    needs no margin of its own, and the bound's latency term is kept as slack: without it
-    the charging adversary of ``benchmarks/conditions.py`` (n = 10, 100 episodes) collided
-    2.65 times per episode on views 3 steps late, none with it (the slack costs the frame
-    rule + tracker 1.15x -> 1.11x the steps at 2 steps late, 1.26x -> 1.18x at 3). A
+    needs no margin of its own. It did keep the bound's latency term as slack while a pair
+    already inside the guard kept only the approach its late view had let it make: the
+    charging adversary of ``benchmarks/conditions.py`` (n = 10, 100 episodes) collided 3.98
+    times per episode on views 3 steps late without it. Since such a robot gives that
+    approach back (:meth:`runtime.core.orca.OrcaFilter.robot`), none does without the slack,
+    and `rule:frame-balanced` + the tracker took 1.115x -> 1.101x the steps lower bound. A
     differential drive's sideways error is not in it: the guard bounds what the wheels will
     drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`); nor is the
     wheels' gain spread, which bounds the command instead (``OrcaParams.guard_gain``)."""
     sensing = 0.5 * GUARD_SIGMAS * conditions.noise_m * math.sqrt(2.0)
     acting = MARGIN_SIGMAS * conditions.act_noise_mps * world.dt_s
-    return 0.5 * _late_m(conditions, world) + math.hypot(sensing, acting)
+    return math.hypot(sensing, acting)
 
 
 def _late_m(conditions: Conditions, world: WorldConfig) -> float:
@@ -341,10 +343,10 @@ def guard_note(guard_m: float, spacing_m: float) -> str | None:
     """One line for a pattern whose closest pair (``spacing_m``) lies inside the guard's
     distance ``guard_m`` (:func:`guard_distance`), None where it does not: two robots landing
     next to each other there may come no closer, as they see each other, and only the noise
-    lets them reach their slots. Under the ``harsh`` preset (0.50 m against the built-in
+    lets them reach their slots. Under the ``harsh`` preset (0.45 m against the built-in
     patterns' 0.40 m; ``benchmarks/conditions.py --cases harsh``, n = 10, 100 episodes,
-    `rule:frame-balanced` + the tracker) the team formed 36 % of episodes; with its shapes
-    spaced 0.50 m (``--spacing``) 98 %, 0.55 m 100 %."""
+    `rule:frame-balanced` + the tracker) the team formed 88 % of episodes at 5.1x the steps
+    lower bound; with its shapes spaced 0.55 m (``--spacing``) 100 % at 2.6x."""
     if not (guard_m > spacing_m):  # NaN: nothing to say
         return None
     return (f"the pattern's closest pair is {spacing_m:.2f} m apart, inside the {guard_m:.2f} m "

@@ -147,6 +147,17 @@ steps (2,002 steps; 1 in 2,260), 0 collisions; in ``benchmarks/conditions.py`` (
 per shape, the table's seeds) 1-3 steps late 1.07x / 1.08x / 1.11x, all held, the adversary
 0 collisions.
 
+**The centroid of one moment.** The raw centroid counted each peer where it was last seen
+and the robot itself where it is now: on late views two moments, and a centroid of its own
+for every robot. :func:`seen_centroid` now counts the robot where it stood when it saw its
+peers (its pose of their views' age, from the guard's references), so on exact late views
+every robot sees the team's centroid of that moment, the same for all, which a team landing
+in it does not move. Measured (``benchmarks/conditions.py``, n = 10, 100 episodes, with the
+guard's retreat of :meth:`runtime.core.orca.OrcaFilter.robot`): 2 / 3 steps late 1.078x /
+1.101x -> 1.075x / 1.086x the steps lower bound, n = 25 3 steps late 1.127x (1.161x before
+both), the realistic preset 1.231x -> 1.233x, all held, 0 collisions. The guard keeps no
+margin of its own for exact late views now, so ``landed_m`` changes nothing there.
+
 **Parked inside the tolerance, on noisy wheels that turn.** A differential-drive base whose
 wheels add noise whenever it moves gains nothing from correcting a few millimetres: to
 move sideways it turns first, creeping along its heading meanwhile, and every step it moves
@@ -353,24 +364,38 @@ def smooth_centroid(prev: Array | None, seen: Array, gain: float, gate: Any = ma
 
 def seen_centroid(pos: Array, me: Any, ref: Array | None) -> Array:
     """The team's centroid (..., 2) m as robot ``me`` (an index, or (...,) of them) sees it
-    raw: each peer's last sensed position (``ref[..., 0:2]``, the guard's references of
+    raw, every robot at the age of its view: each peer's last sensed position
+    (``ref[..., 0:2]``, the guard's references of
     :meth:`runtime.decision.local.Perception.perceive`: never lagging as the tracker's
-    smoothing does, with noise that averages out over a landing), its own position from
-    ``pos`` (..., n, 2), and ``pos`` where a view is missing (``ref`` None: ``pos`` alone)."""
+    smoothing does, with noise that averages out over a landing) and the robot itself where
+    it stood when it saw them (the mean of ``ref[..., 2:4]`` over its peers): on late views
+    the team's centroid of that moment, the same for every robot, where the robot's own pose
+    of now would pull each robot's centroid its own way. ``pos`` (..., n, 2) where a view is
+    missing (``ref`` None: ``pos`` alone; no peer's view: the robot's own pose now)."""
     p = np.asarray(pos, dtype=np.float64)
     if ref is None:
         out: Array = p.mean(axis=-2)
         return out
-    raw = np.array(np.asarray(ref, dtype=np.float64)[..., 0:2])
+    r = np.asarray(ref, dtype=np.float64)
+    raw = np.array(r[..., 0:2])
     bad = ~np.isfinite(raw).all(axis=-1)
     raw[bad] = p[bad]
     idx = np.asarray(me)
+    n = p.shape[-2]
+    peer = np.arange(n) != (idx[..., None] if idx.ndim else int(idx))  # (..., n)
+    then = r[..., 2:4]
+    ok = np.isfinite(then).all(axis=-1) & peer
+    count = ok.sum(axis=-1)
+    own_then = np.where(ok[..., None], then, 0.0).sum(axis=-2) / np.maximum(count, 1)[..., None]
     if idx.ndim == 0:
-        raw[..., int(idx), :] = p[..., int(idx), :]
+        own_now = p[..., int(idx), :]
+        raw[..., int(idx), :] = np.where((count > 0)[..., None], own_then, own_now)
     else:
         rows = np.arange(idx.size)
-        raw.reshape(-1, *raw.shape[-2:])[rows, idx.reshape(-1)] = (
-            p.reshape(-1, *p.shape[-2:])[rows, idx.reshape(-1)])
+        flat = raw.reshape(-1, *raw.shape[-2:])
+        own_now = p.reshape(-1, *p.shape[-2:])[rows, idx.reshape(-1)]
+        flat[rows, idx.reshape(-1)] = np.where((count.reshape(-1) > 0)[:, None],
+                                               own_then.reshape(-1, 2), own_now)
     out = raw.mean(axis=-2)
     return out
 

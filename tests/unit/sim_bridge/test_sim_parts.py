@@ -224,8 +224,8 @@ def test_the_worlds_next_pattern_is_numbered_above_an_operators() -> None:
 
 
 def test_launch_notes_the_patterns_inside_the_guard_once(tmp_path: Path) -> None:
-    """``launch --conditions harsh``: one line naming every pattern the guard (0.50 m) keeps
-    its neighbours out of; a pattern spaced wider, and the realistic preset's guard (0.37 m),
+    """``launch --conditions harsh``: one line naming every pattern the guard (0.45 m) keeps
+    its neighbours out of; a pattern spaced wider, and the realistic preset's guard (0.35 m),
     draw none."""
     from runtime.conditions import parse_conditions
     from sim_bridge.launch.launch import guard_notes

@@ -58,7 +58,7 @@ def test_eval_under_conditions_reports_them_and_the_hold(
 def test_eval_notes_a_pattern_inside_the_guard_and_a_wider_one_forms(
     tmp_path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Under ``harsh`` the guard keeps robots 0.50 m apart as they see them, wider than the
+    """Under ``harsh`` the guard keeps robots 0.45 m apart as they see them, wider than the
     built-ins' 0.40 m: eval says so in one line on stderr, and the JSON on stdout stays
     whole; the same circle spaced 0.55 m by ``patterns show --spacing --save`` draws no
     note and forms."""
@@ -70,7 +70,7 @@ def test_eval_notes_a_pattern_inside_the_guard_and_a_wider_one_forms(
     out, err = capsys.readouterr()
     notes = err.strip().splitlines()
     assert len(notes) == 1 and notes[0].startswith(
-        "patternrl eval: note: the pattern's closest pair is 0.40 m apart, inside the 0.50 m")
+        "patternrl eval: note: the pattern's closest pair is 0.40 m apart, inside the 0.45 m")
     json.loads(out)
     wide = tmp_path / "wide.csv"
     assert main(["patterns", "show", "circle", "--robots", "6", "--spacing", "0.55",

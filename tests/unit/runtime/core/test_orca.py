@@ -438,6 +438,21 @@ def test_a_pair_inside_the_guard_keeps_its_distance(pref: tuple[float, float]) -
         assert vx * wx + vy * wy <= 1e-12
 
 
+def test_a_pair_inside_the_guard_gives_back_what_it_closed_while_its_view_was_late() -> None:
+    """Seen 0.28 m away, inside G, when the robot stood 3 cm further back: it has closed 3 cm
+    since, unseen by its peer, and steps back by them this step (the two robots then keep
+    the distance they were seen at), even when its brain asks to go on or to stand still."""
+    ref = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], [0.25, 0.0, -0.03, 0.0, 0.0, 0.5]]
+    sn = (G - R) / 0.28
+    for pref in ((1.0, 0.0), (0.0, 0.0), (0.0, 0.5)):
+        vx, vy = guarded([0.25, 0.0], [0.0, 0.0], pref, ref)
+        for wx, wy in ((1.0, 0.0), (math.sqrt(1 - sn * sn), sn), (math.sqrt(1 - sn * sn), -sn)):
+            assert vx * wx + vy * wy <= -0.03 / DT + 1e-9
+    ref[1][2] = 0.0  # not closed since: it keeps its distance, no more
+    vx, _ = guarded([0.28, 0.0], [0.0, 0.0], (0.0, 0.0), ref)
+    assert vx == pytest.approx(0.0, abs=1e-12)
+
+
 def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
     """The neighbour was last seen 0.7 m away, when the robot stood 0.15 m further back: of
     half the room then, (0.7 - G) / 2 = 0.2 m, it has used 0.15, so 0.05 m are left this
@@ -453,15 +468,23 @@ def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
     assert vx == pytest.approx(0.025 / DT)
 
 
-@pytest.mark.parametrize(("share", "left_m"), [(0.6, 0.09), (0.3, 0.0), (0.5, 0.05),
-                                               (np.nan, 0.05), (-2.0, 0.0), (0.45, 0.03)])
+@pytest.mark.parametrize(("share", "left_m"), [(0.6, 0.09), (0.3, -0.03), (0.5, 0.05),
+                                               (np.nan, 0.05), (-2.0, -0.15), (0.45, 0.03)])
 def test_the_guard_gives_the_robot_its_share_of_the_room(share: float, left_m: float) -> None:
     """Seen 0.7 m away with 0.15 m closed since: of ``share`` of the room then,
     ``share (0.7 - G)``, what is left this step (a share not finite is half, one below 0
-    none); a lost update's bound from here stays at half the room."""
+    none); a lost update's bound from here stays at half the room. Where the robot has
+    closed more than its share, it gives the rest back, along the seen direction and both
+    edges of the cone (so a little more along the direction), at most at full speed."""
     ref = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], [0.55, 0.0, -0.15, 0.0, 0.0, share]]
-    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
-    assert vx == pytest.approx(left_m / DT, abs=1e-12)
+    vx, vy = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
+    if left_m >= 0.0:
+        assert vx == pytest.approx(left_m / DT, abs=1e-12)
+    else:
+        sn = (G - R) / 0.7
+        assert vx == pytest.approx(max(left_m / DT / math.sqrt(1 - sn * sn), -V_MAX),
+                                   rel=1e-4)
+        assert abs(vy) < 1e-3 and math.hypot(vx, vy) <= V_MAX
     if share == 0.6:  # from here, now: (0.55 - 0.1 - G) / 2 = 0.075 m, less than its share
         ref[1][4] = 0.1
         vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)

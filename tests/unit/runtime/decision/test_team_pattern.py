@@ -146,11 +146,11 @@ def test_operator_patterns_do_not_move_the_worlds_version() -> None:
 def test_a_pattern_inside_the_safety_guard_is_taken_with_a_warning() -> None:
     said: list[tuple[str, str, str]] = []
     policy = TeamPattern("circle", log=lambda level, what, text: said.append((level, what, text)))
-    policy.guard_m = 0.5  # the harsh preset's guard, wider than the built-ins' 0.40 m
+    policy.guard_m = 0.45  # the harsh preset's guard, wider than the built-ins' 0.40 m
     pts, why = policy.for_team(6)
     assert pts is not None and why == ""
     warned = [t for level, _, t in said if level == "warning"]
-    assert len(warned) == 1 and "closest pair is 0.40 m apart, inside the 0.50 m" in warned[0]
+    assert len(warned) == 1 and "closest pair is 0.40 m apart, inside the 0.45 m" in warned[0]
     policy.for_team(6)  # the cached target: said once
     assert len([s for s in said if s[0] == "warning"]) == 1
     said.clear()
