@@ -331,12 +331,13 @@ class OrcaFilter:
         no margin). A share outside [0, 1] is clipped to it, one not finite is half. A pair
         already inside keeps its distance: a robot with no room left gives back what it has
         closed since, which its late view let it take (a bound below zero: a retreat), and
-        both robots then end the step no closer than they were seen. The bound holds along ``u`` and along the two
-        edges of the cone the peer may lie in, ``asin((guard_m - 2R') / D)``, for the
-        error of a noisy view. A peer whose last update was lost (the two robots' views then
-        differ in age) is also bounded from where the robot stands now, as if the peer had
-        come ``guard_ref[..., 4]`` (m, the way it may have come since it was seen; 0: seen
-        on time) straight at it, within half the room.
+        both robots then end the step no closer than they were seen. The bound holds along
+        ``u`` and along the two edges of the cone the peer may lie in,
+        ``asin((guard_m - 2R') / D)``, for the error of a noisy view. A peer whose last
+        update was lost (the two robots' views then differ in age) is also bounded from
+        where the robot stands now, as if the peer had come ``guard_ref[..., 4]`` (m, the
+        way it may have come since it was seen; 0: seen on time) straight at it, within half
+        the room.
         Without ``guard_ref`` the pair is taken as it is in ``pos``. The guard projects the
         velocity on each bound in turn (:data:`GUARD_PASSES` rounds) and clamps it to v_max;
         where the rounds do not settle (retreats from two sides at once), it scales the
