@@ -513,7 +513,8 @@ class OrcaFilter:
                 pos: cython.const[cython.double][:, :, ::1],
                 ref: cython.const[cython.double][:, :, ::1]) -> cython.Py_ssize_t:
         """The guard's bounds for the ``m`` neighbours at [a, b] into ``_bound`` (rows
-        [wx, wy, cap]: the velocity's component along w at most cap, m/s); how many."""
+        [wx, wy, cap, cap or 0]: the velocity's component along w at most cap, m/s, below
+        zero for a retreat, and the same with a retreat taken as zero); how many."""
         inv_dt: cython.double = 1.0 / self.dt
         g: cython.double = self.guard
         out = self._bound
@@ -606,7 +607,8 @@ class OrcaFilter:
     @cython.exceptval(check=False)
     def _scale(self, k: cython.Py_ssize_t, vx: cython.double, vy: cython.double,
                any_heading: cython.bint) -> cython.double:
-        """The largest s in [0, 1] with s (vx, vy) within the first ``k`` bounds; with
+        """The largest s in [0, 1] with s (vx, vy) within the first ``k`` bounds, their
+        retreats taken as zero (which s = 0 always keeps); with
         ``any_heading``, for whatever a differential-drive base at an unknown heading drives
         of it (at most ``(|v| + v.w) / 2`` along w)."""
         out = self._bound
