@@ -14,7 +14,8 @@ gives each robot of each env what its robot process gives its brain
    per robot);
 3. its slot: the centroid frame (general) or the synchronised plan's frame (plan), which
    under noise lands in the centroid frame, averaged over the landing's steps, for the last
-   ``Settle.centroid_steps`` steps; and its way left to that slot (``to_slot``), by which
+   ``Settle.centroid_steps`` steps (on exact late views first in the plan's frame, kept for
+   ``Settle.plan_frame_steps``); and its way left to that slot (``to_slot``), by which
    the world damps its landing;
 4. its row, built by the rows every robot builds (:func:`general_observation`).
 
@@ -28,6 +29,8 @@ Cost: E x n teams of n for the assignment and the rows, n times the perfect worl
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from runtime.conditions import Conditions
@@ -35,7 +38,13 @@ from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
 from runtime.decision.rules import plan_targets, plan_velocity
-from runtime.decision.settle import centroid_targets, seen_centroid, settle_for, smooth_centroid
+from runtime.decision.settle import (
+    centroid_targets,
+    seen_centroid,
+    seen_team,
+    settle_for,
+    smooth_centroid,
+)
 from runtime.types import Array, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -68,6 +77,7 @@ class SensedRows:
         self._centroid = np.zeros((E * n, 2))  # each robot's landing centroid (settle.Lander)
         self._landing = np.zeros(E * n, dtype=bool)  # who landed in it last step
         self._land_k = np.zeros(E * n, dtype=np.int64)  # and for how many steps before
+        self._plan_frame = np.zeros((E * n, 2))  # the plan's frame kept from its first step
         self.to_slot: Array = np.full((E, n), np.inf)
         """(E, n) m: each robot's way left to its slot under its plan, as of the last rows
         (inf: none), which the training world's damped landing reads."""
@@ -81,6 +91,27 @@ class SensedRows:
         self._potentials[rows] = 0.0
         self._landing[rows] = False
         self.to_slot.reshape(-1)[rows] = np.inf
+
+    def _frame(self, land: Any, cont: Any, m: Array, P: Array, C: Array, slots: IntArray,
+               ref: Array | None) -> Array:
+        """The landing frames' centroids (landing rows, 2) m: ``m``, their centroids, or for a
+        landing's first ``plan_frame_steps`` steps the centroid of the targets the plan gives
+        the team of one moment as the robot sees it on the landing's first step, kept
+        (:meth:`runtime.decision.settle.Lander.frame`)."""
+        assert self.settle is not None
+        keep = self.settle.plan_frame_steps
+        if keep <= 0:
+            return m
+        first = land & ~cont
+        if first.any():
+            team = seen_team(P[first], np.tile(self._eye, self.n_envs)[first],
+                             None if ref is None else ref[first])
+            target, _ = plan_targets(team, C[first], slots[first], self.spec.travel_weight,
+                                     self.world)
+            self._plan_frame[first] = target.mean(axis=1)
+        kept = self._land_k[land] < keep
+        out: Array = np.where(kept[:, None], self._plan_frame[land], m)
+        return out
 
     def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:
         """Every robot's row (E, n, dim) float32 from the teams as they truly are now,
@@ -122,7 +153,8 @@ class SensedRows:
                     self.settle.centroid_gate(n))
                 self._centroid[land] = m
                 pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
-                G[land], K[land] = centroid_targets(P[land], pts, m, self.world)
+                G[land], K[land] = centroid_targets(P[land], pts, self._frame(
+                    land, cont, m, P, C, slots, seen.guard_ref), self.world)
             self._landing = land
             # each robot's plan for its whole team: peers out of view go along it next step
             self._follow = plan_velocity(G, P, K, self.world)

@@ -33,13 +33,15 @@ class RecordingBrain:
 
 @pytest.mark.parametrize("obs", ["plan", "general"])
 @pytest.mark.parametrize("spec", ["realistic", "noise_m=0.1,latency_steps=2", "k_nearest=3",
-                                  "landing"])
+                                  "landing", "late landing"])
 def test_each_robots_row_is_what_its_robot_builds_from_its_own_view(obs: str, spec: str) -> None:
     """``landing``: 10 cm noise with the team next to its slots, so that every plan lands in
-    its averaged centroid frame (runtime.decision.settle) from the first step on."""
+    its averaged centroid frame (runtime.decision.settle) from the first step on; ``late
+    landing``: exact views 3 steps late, the team next to its slots, so that every plan lands
+    in the plan's frame it keeps, then in the centroid frame."""
     E, n, seed = 2, 6, 7
-    landing = spec == "landing"
-    spec = "noise_m=0.1" if landing else spec
+    landing = spec in ("landing", "late landing")
+    spec = {"landing": "noise_m=0.1", "late landing": "latency_steps=3"}.get(spec, spec)
     cond = parse_conditions(spec)
     ospec = ObservationSpec(obs, k_neighbours=4, travel_weight=0.25 if obs == "plan" else 0.0)
     rows = SensedRows(cond, ospec, E, n, seed)
@@ -56,7 +58,7 @@ def test_each_robots_row_is_what_its_robot_builds_from_its_own_view(obs: str, sp
     if landing:
         truth = pattern + 1.5 + rng.normal(0.0, 0.03, (E, n, 2))
         drift = rng.normal(0.0, 0.005, (E, n, 2))
-    for _ in range(8 if landing else 6):
+    for _ in range(12 if landing else 6):
         brain.rows.clear()
         local.decide(truth, pattern)
         want = np.concatenate(brain.rows).reshape(E, n, -1)
