@@ -32,7 +32,7 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame, plan_targets, plan_velocity
 from runtime.decision.safety import OrcaParams, landing, make_filter
-from runtime.decision.settle import Lander, Settle, centroid_targets, seen_centroid, seen_team
+from runtime.decision.settle import Lander, Settle, centroid_targets, seen_team
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -246,16 +246,15 @@ class Controller:
         the plan's frame, kept: :meth:`runtime.decision.settle.Lander.frame`), and the steps
         left (a 0-d array)."""
         assert self._lander is not None
-        m = self._lander.frame(seen_centroid(pos, self._me, self._ref), self._tick, len(pos),
-                               pos.mean(axis=0), lambda: self._planned_centroid(pos, points))
+        m = self._lander.frame(seen_team(pos, self._me, self._ref), points, self._tick,
+                               pos.mean(axis=0), lambda team: self._planned_centroid(team, points))
         return centroid_targets(pos, points, m, self.world)
 
-    def _planned_centroid(self, pos: Array, points: Array) -> Array:
-        """The centroid (2,) m of the targets the plan gives the team as the robot sees it of
+    def _planned_centroid(self, team: Array, points: Array) -> Array:
+        """The centroid (2,) m of the targets the plan gives ``team``, as the robot sees it of
         one moment (:func:`seen_team`): on exact late views the same for every robot."""
-        team = seen_team(pos, self._me, self._ref)
         weight = getattr(self._brain, "travel_weight", self._brain.spec.travel_weight)
-        target, _ = plan_targets(team[None], points[None], np.arange(len(pos))[None],
+        target, _ = plan_targets(team[None], points[None], np.arange(len(team))[None],
                                  float(weight), self.world)
         out: Array = target[0].mean(axis=0)
         return out

@@ -56,6 +56,27 @@ def test_a_noisy_late_lossy_swarm_forms_without_collision(
     assert far <= DEFAULT_WORLD.formed_tol_m
 
 
+@pytest.mark.parametrize("seed", [14, 15])
+def test_a_late_team_does_not_walk_after_a_robot_held_off_the_cross_centre(
+    procs: Any, seed: int
+) -> None:
+    """Exact views 3 steps late, 8 robots from the circle to the cross (``launch``, the
+    learned brain): the guard holds the robot bound for the cross's centre off its slot. A
+    team landing in its centroid frame walked after it, each step, and never formed the cross
+    in its 400 steps (seed 14 landing in the centroid frame from the start, seed 15 after the
+    plan's frame, 4 m away); landing in the frame of its median robot it forms
+    (runtime.decision.settle, "The plan's frame, kept, then the median robot's")."""
+    launch = procs.start(
+        "launch", "launch", "--robots", "8", "--patterns", "circle,cross", "--seed", str(seed),
+        "--conditions", "latency_steps=3", "--estimator", "--step-deadline-ms", "5000",
+        "--no-record", "--no-plot", "--json", "--swarm", f"e2e-walk-{seed}-{os.getpid()}")
+    assert launch.wait(timeout=150) == 0, procs.log("launch")
+    result = json.loads(procs.log("launch").strip().splitlines()[-1])
+    cross = result["phases"][1]
+    assert cross["pattern"] == "cross" and cross["formed"], cross
+    assert all(p["collisions"] == 0 for p in result["phases"])
+
+
 def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
     procs: Any, tmp_path: Path, kit: Any, capsys: pytest.CaptureFixture[str]
 ) -> None:

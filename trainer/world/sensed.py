@@ -14,9 +14,9 @@ gives each robot of each env what its robot process gives its brain
    per robot);
 3. its slot: the centroid frame (general) or the synchronised plan's frame (plan), which
    under noise lands in the centroid frame, averaged over the landing's steps, for the last
-   ``Settle.centroid_steps`` steps (on exact late views first in the plan's frame, kept for
-   ``Settle.plan_frame_steps``); and its way left to that slot (``to_slot``), by which
-   the world damps its landing;
+   ``Settle.centroid_steps`` steps (on exact late views in the plan's frame, kept for
+   ``Settle.plan_frame_steps``, then the team's median frame); and its way left to that slot
+   (``to_slot``), by which the world damps its landing;
 4. its row, built by the rows every robot builds (:func:`general_observation`).
 
 A robot whose episode starts (a reset) has its roll call: its first row is built from the
@@ -40,6 +40,7 @@ from runtime.decision.observation import ObservationSpec, general_observation
 from runtime.decision.rules import plan_targets, plan_velocity
 from runtime.decision.settle import (
     centroid_targets,
+    median_frame,
     seen_centroid,
     seen_team,
     settle_for,
@@ -94,23 +95,26 @@ class SensedRows:
 
     def _frame(self, land: Any, cont: Any, m: Array, P: Array, C: Array, slots: IntArray,
                ref: Array | None) -> Array:
-        """The landing frames' centroids (landing rows, 2) m: ``m``, their centroids, or for a
-        landing's first ``plan_frame_steps`` steps the centroid of the targets the plan gives
-        the team of one moment as the robot sees it on the landing's first step, kept
+        """The landing frames' centroids (landing rows, 2) m: ``m``, their centroids, or on
+        exact late views for a landing's first ``plan_frame_steps`` steps the centroid of the
+        targets the plan gives the team of one moment as the robot sees it on the landing's
+        first step, kept, then the team's median frame
         (:meth:`runtime.decision.settle.Lander.frame`)."""
         assert self.settle is not None
         keep = self.settle.plan_frame_steps
         if keep <= 0:
             return m
         first = land & ~cont
+        team = seen_team(P[land], np.tile(self._eye, self.n_envs)[land],
+                         None if ref is None else ref[land])
         if first.any():
-            team = seen_team(P[first], np.tile(self._eye, self.n_envs)[first],
-                             None if ref is None else ref[first])
-            target, _ = plan_targets(team, C[first], slots[first], self.spec.travel_weight,
+            at = first[land]
+            target, _ = plan_targets(team[at], C[first], slots[first], self.spec.travel_weight,
                                      self.world)
             self._plan_frame[first] = target.mean(axis=1)
         kept = self._land_k[land] < keep
-        out: Array = np.where(kept[:, None], self._plan_frame[land], m)
+        pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
+        out: Array = np.where(kept[:, None], self._plan_frame[land], median_frame(team, pts))
         return out
 
     def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:

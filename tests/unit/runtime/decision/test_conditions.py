@@ -217,8 +217,9 @@ def test_a_team_on_a_plan_with_late_exact_views_lands_as_in_the_perfect_world(sp
     peers carried along the team's plan, and each episode lands in the very steps of the
     perfect world (planning from the views as sensed took 1.22x the lower bound at 2 steps
     late, the perfect world 1.05x). Two and three steps late the landing keeps the plan's
-    frame of one moment (runtime.decision.settle, "The plan's frame, kept"); in the centroid
-    frame from its first step it took up to a step less than the views' age more."""
+    frame of one moment (runtime.decision.settle, "The plan's frame, kept, then the median
+    robot's"); in the centroid frame from its first step it took up to a step less than the
+    views' age more."""
     from runtime.brain.brain import load_brain
     from trainer.evaluate import evaluate_brain
 
@@ -533,33 +534,42 @@ def test_the_landing_averages_the_teams_centroid_over_its_steps() -> None:
     assert float(k) == 4.0  # the way of the farthest, 0.36 m, at 0.1 m a step
 
 
-def test_a_late_landing_keeps_the_plans_frame_then_lands_in_the_centroid_frame() -> None:
+def test_a_late_landing_keeps_the_plans_frame_then_the_teams_median_frame() -> None:
     """Exact views 3 steps late: the landing's first step asks the plan for its frame once and
-    keeps it for ``plan_frame_steps`` steps, whatever the centroid seen does; then the centroid
-    seen; the same step again redoes it, a gap starts a new landing, which asks again."""
-    from runtime.decision.settle import Lander, settle_for
+    keeps it for ``plan_frame_steps`` steps, whatever the team seen does; then the frame the
+    median robot stands in, which a robot held off its slot does not move (the centroid frame
+    moves by its share of the way it is off); the same step again redoes it, a gap starts a new
+    landing, which asks again. Under noise: the centroid frame from the start."""
+    from runtime.decision.settle import Lander, median_frame, settle_for
 
     s = settle_for(Conditions(latency_steps=3))
     assert s is not None
-    asked: list[int] = []
+    points = np.array([[-0.4, 0.0], [0.0, 0.0], [0.4, 0.0], [0.0, 0.4]])
+    asked: list[np.ndarray] = []
 
-    def planned() -> np.ndarray:
-        asked.append(1)
+    def planned(team: np.ndarray) -> np.ndarray:
+        asked.append(team.copy())
         return np.array([7.0, 7.0])
 
+    held = points - points.mean(axis=0) + [2.0, 1.0]  # formed around (2, 1) but one robot
+    held[3] += [0.0, 0.3]  # held 0.3 m off its slot
     lander = Lander(s, 0.1)
-    frames = [lander.frame(np.array([float(t), 0.0]), t, 10, np.zeros(2), planned)
+    frames = [lander.frame(held + np.array([0.0, 0.01 * t]), points, t, np.zeros(2), planned)
               for t in range(s.plan_frame_steps + 2)]
-    assert len(asked) == 1
+    assert len(asked) == 1 and np.allclose(asked[0], held)
     assert all(np.allclose(f, [7.0, 7.0]) for f in frames[:s.plan_frame_steps])
-    assert np.allclose(frames[s.plan_frame_steps], [s.plan_frame_steps, 0.0])  # seen, no gate
-    t = s.plan_frame_steps + 1
-    assert np.allclose(lander.frame(np.array([1.0, 2.0]), t, 10, np.zeros(2), planned), [1, 2])
-    assert np.allclose(lander.frame(np.zeros(2), t + 5, 10, np.zeros(2), planned), [7, 7])
+    t = s.plan_frame_steps
+    assert np.allclose(frames[t], [2.0, 1.0 + 0.01 * t])  # the median robot's frame
+    assert np.allclose(held.mean(axis=0), [2.0, 1.075])  # where the centroid frame would walk
+    assert np.allclose(median_frame(held, points + 5.0), [2.0, 1.0])  # any translation
+    t += 1
+    assert np.allclose(lander.frame(held, points, t, np.zeros(2), planned), [2.0, 1.0])
+    assert np.allclose(lander.frame(held, points, t + 5, np.zeros(2), planned), [7, 7])
     assert len(asked) == 2  # a new landing
     noisy = settle_for(Conditions(noise_m=0.05), estimator=True)
     assert noisy is not None  # under noise the centroid frame from the start, never the plan
-    assert np.allclose(Lander(noisy, 0.1).frame(np.ones(2), 0, 10, np.full(2, 3.0), planned), 3)
+    start = np.full(2, 3.0)
+    assert np.allclose(Lander(noisy, 0.1).frame(held, points, 0, start, planned), start)
     assert len(asked) == 2
 
 
