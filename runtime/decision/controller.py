@@ -32,7 +32,7 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame, plan_targets, plan_velocity
 from runtime.decision.safety import OrcaParams, landing, make_filter
-from runtime.decision.settle import Lander, Settle, centroid_targets, seen_team
+from runtime.decision.settle import Lander, Settle, centroid_targets, seen_team, shared_slots
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -246,8 +246,10 @@ class Controller:
         the plan's frame, kept: :meth:`runtime.decision.settle.Lander.frame`), and the steps
         left (a 0-d array)."""
         assert self._lander is not None
-        m = self._lander.frame(seen_team(pos, self._me, self._ref), points, self._tick,
-                               pos.mean(axis=0), lambda team: self._planned_centroid(team, points))
+        m, points = self._lander.frame(
+            seen_team(pos, self._me, self._ref), points, self._tick, pos.mean(axis=0),
+            lambda team: self._planned_centroid(team, points),
+            lambda team: self._cc[shared_slots(team, self._cc)])
         return centroid_targets(pos, points, m, self.world)
 
     def _planned_centroid(self, team: Array, points: Array) -> Array:

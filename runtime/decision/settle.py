@@ -199,6 +199,18 @@ where few landings last past the kept frame) is unchanged by it at n = 10 and n 
 one circle of 100 episodes, a robot caught inside the landed ring, took 156 steps where the
 centroid frame's walk freed it in 84 (bound 26): 1.177x -> 1.205x the lower bound.
 
+Past the kept frame the landing also takes its slots from the team of one moment
+(:func:`shared_slots`, solved cold), not from the robot's own assignment. That assignment
+keeps its hysteresis along the robot's own views, which carry its peers along its own plan: in
+`launch --robots 10 --conditions latency_steps=2 --estimator --seed 8` one robot, assigned a
+landed neighbour's slot, saw that neighbour carried toward the slot it had given it, while
+every other robot gave it the free one; it pushed at the neighbour for 400 steps. On exact
+views the team of one moment is the same for every robot, so is its assignment. Measured on
+the same launches (seeds 0-12 with 10 robots, 4-16 with 8; 104 patterns each): 2 steps late
+3,759 -> 3,246 steps, 1 -> 0 patterns not formed; 3 steps late 4,327 -> 4,076, 0 -> 1 (a
+heart, 10 robots, seed 4: half the team held 0.19 m off one way, which moves the median too).
+``benchmarks/conditions.py`` at n = 10 and n = 25 is unchanged by it.
+
 **Parked inside the tolerance, on noisy wheels that turn.** A differential-drive base whose
 wheels add noise whenever it moves gains nothing from correcting a few millimetres: to
 move sideways it turns first, creeping along its heading meanwhile, and every step it moves
@@ -228,15 +240,16 @@ from typing import Any
 import numpy as np
 
 from runtime.conditions import Conditions
+from runtime.core.assignment import assign_teams
 from runtime.core.plan_frame import steps_left
 from runtime.decision.estimator import steady_sigma
 from runtime.decision.safety import OrcaParams
-from runtime.types import Array
+from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["CENTROID_FRAME", "Lander", "Settle", "centroid_targets", "damp_landing",
            "landing_gain", "median_frame", "seen_centroid", "seen_team", "settle_for",
-           "smooth_centroid"]
+           "shared_slots", "smooth_centroid"]
 
 
 @dataclass(frozen=True)
@@ -389,22 +402,27 @@ class Lander:
         return self._m
 
     def frame(self, team: Array, points: Array, tick: int, start: Array,
-              planned: Callable[[Array], Array]) -> Array:
-        """The landing frame's centroid (2,) m from the team (n, 2) as the robot sees it raw
-        (:func:`seen_team`) and its slot points ``points`` (n, 2): :meth:`centroid`'s of the
-        team's centroid (``tick``, ``start`` as there); on exact late views
-        (``plan_frame_steps`` > 0) for the landing's first ``plan_frame_steps`` steps the
-        centroid of the team's targets that ``planned(team)`` gives on its first step, kept,
-        then :func:`median_frame` (see "The plan's frame, kept, then the median robot's")."""
+              planned: Callable[[Array], Array],
+              shared: Callable[[Array], Array] | None = None) -> tuple[Array, Array]:
+        """The landing frame's centroid (2,) m and the slot points (n, 2) it holds, from the
+        team (n, 2) as the robot sees it raw (:func:`seen_team`) and its slot points
+        ``points``: :meth:`centroid`'s of the team's centroid (``tick``, ``start`` as there);
+        on exact late views (``plan_frame_steps`` > 0) for the landing's first
+        ``plan_frame_steps`` steps the centroid of the team's targets that ``planned(team)``
+        gives on its first step, kept, then the :func:`median_frame` of the slot points
+        ``shared(team)`` gives, an assignment every robot makes alike from the team of one
+        moment (None: ``points``; see "The plan's frame, kept, then the median robot's")."""
         m = self.centroid(team.mean(axis=0), tick, len(team), start)
         keep = self.settle.plan_frame_steps
         if keep <= 0:
-            return m
+            return m, points
         if self._k >= keep:
-            return median_frame(team, points)
+            if shared is not None:
+                points = shared(team)
+            return median_frame(team, points), points
         if self._k == 0 or self._frame is None:
             self._frame = np.asarray(planned(team), dtype=np.float64)
-        return self._frame
+        return self._frame, points
 
     def apply(self, vx: float, vy: float, to_slot_m: float | None = None
               ) -> tuple[float, float]:
@@ -491,6 +509,22 @@ def median_frame(team: Array, points: Array) -> Array:
     off = np.asarray(team, dtype=np.float64) - (p - p.mean(axis=-2, keepdims=True))
     out: Array = np.median(off, axis=-2)
     return out
+
+
+def shared_slots(team: Array, centred: Array) -> IntArray:
+    """The assignment (..., n) of the team (..., n, 2) as one moment shows it
+    (:func:`seen_team`) to the centred pattern ``centred`` (n, 2) or (..., n, 2), solved cold:
+    on exact views every robot makes the same, where the hysteresis each robot keeps along
+    its own views may hold two robots to each other's slots."""
+    t = np.asarray(team, dtype=np.float64)
+    n = t.shape[-2]
+    flat = np.ascontiguousarray(t.reshape(-1, n, 2))
+    cc = np.array(np.broadcast_to(np.asarray(centred, dtype=np.float64), t.shape),
+                  order="C").reshape(-1, n, 2)  # a writable copy, as the solver takes it
+    out = np.zeros(flat.shape[:2], dtype=np.int64)
+    assign_teams(flat, cc, out, False, np.zeros(flat.shape[:2]), out)
+    slots: IntArray = out.reshape(t.shape[:-1])
+    return slots
 
 
 def centroid_targets(pos: Array, points: Array, centroid: Array,

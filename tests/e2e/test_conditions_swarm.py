@@ -77,6 +77,25 @@ def test_a_late_team_does_not_walk_after_a_robot_held_off_the_cross_centre(
     assert all(p["collisions"] == 0 for p in result["phases"])
 
 
+def test_a_late_team_stalled_on_two_robots_held_to_each_others_slots_comes_loose(
+    procs: Any
+) -> None:
+    """Exact views 2 steps late, 10 robots through the four built-ins (``launch`` seed 8, the
+    learned brain): in the heart one robot's own views, carried along its own plan, kept it
+    assigned to a landed neighbour's slot while every other robot gave it the free one, and it
+    pushed at that neighbour for 400 steps. A landing that goes on past the plan's frame now
+    takes its slots from the assignment the team of one moment gives every robot alike
+    (runtime.decision.settle.shared_slots), and the heart forms."""
+    launch = procs.start(
+        "launch", "launch", "--robots", "10", "--seed", "8", "--conditions", "latency_steps=2",
+        "--estimator", "--step-deadline-ms", "5000", "--no-record", "--no-plot", "--json",
+        "--swarm", f"e2e-stall-{os.getpid()}")
+    assert launch.wait(timeout=150) == 0, procs.log("launch")
+    result = json.loads(procs.log("launch").strip().splitlines()[-1])
+    assert [p["pattern"] for p in result["phases"]] == ["circle", "cross", "line", "heart"]
+    assert all(p["formed"] and p["collisions"] == 0 for p in result["phases"]), result["phases"]
+
+
 def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
     procs: Any, tmp_path: Path, kit: Any, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -44,6 +44,7 @@ from runtime.decision.settle import (
     seen_centroid,
     seen_team,
     settle_for,
+    shared_slots,
     smooth_centroid,
 )
 from runtime.types import Array, F32Array, IntArray
@@ -93,17 +94,19 @@ class SensedRows:
         self._landing[rows] = False
         self.to_slot.reshape(-1)[rows] = np.inf
 
-    def _frame(self, land: Any, cont: Any, m: Array, P: Array, C: Array, slots: IntArray,
-               ref: Array | None) -> Array:
-        """The landing frames' centroids (landing rows, 2) m: ``m``, their centroids, or on
-        exact late views for a landing's first ``plan_frame_steps`` steps the centroid of the
-        targets the plan gives the team of one moment as the robot sees it on the landing's
-        first step, kept, then the team's median frame
-        (:meth:`runtime.decision.settle.Lander.frame`)."""
+    def _frame(self, land: Any, cont: Any, m: Array, P: Array, C: Array, Cc: Array,
+               slots: IntArray, ref: Array | None) -> tuple[Array, Array]:
+        """The landing frames' centroids (landing rows, 2) m and the slot points (landing
+        rows, n, 2) they hold: ``m``, their centroids, at the robots' slots; or on exact late
+        views for a landing's first ``plan_frame_steps`` steps the centroid of the targets
+        the plan gives the team of one moment as the robot sees it on the landing's first
+        step, kept, then the team's median frame at the slots every robot assigns alike from
+        that moment (:meth:`runtime.decision.settle.Lander.frame`)."""
         assert self.settle is not None
+        pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
         keep = self.settle.plan_frame_steps
         if keep <= 0:
-            return m
+            return m, pts
         first = land & ~cont
         team = seen_team(P[land], np.tile(self._eye, self.n_envs)[land],
                          None if ref is None else ref[land])
@@ -113,9 +116,12 @@ class SensedRows:
                                      self.world)
             self._plan_frame[first] = target.mean(axis=1)
         kept = self._land_k[land] < keep
-        pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
-        out: Array = np.where(kept[:, None], self._plan_frame[land], median_frame(team, pts))
-        return out
+        late = ~kept
+        if late.any():  # the landing goes on: one moment's slots, the median robot's frame
+            cc = Cc[land][late]
+            pts[late] = np.take_along_axis(cc, shared_slots(team[late], cc)[..., None], axis=1)
+        frame: Array = np.where(kept[:, None], self._plan_frame[land], median_frame(team, pts))
+        return frame, pts
 
     def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:
         """Every robot's row (E, n, dim) float32 from the teams as they truly are now,
@@ -156,9 +162,8 @@ class SensedRows:
                     self.settle.centroid_weight(self._land_k[cont]),
                     self.settle.centroid_gate(n))
                 self._centroid[land] = m
-                pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
-                G[land], K[land] = centroid_targets(P[land], pts, self._frame(
-                    land, cont, m, P, C, slots, seen.guard_ref), self.world)
+                frame, pts = self._frame(land, cont, m, P, C, Cc, slots, seen.guard_ref)
+                G[land], K[land] = centroid_targets(P[land], pts, frame, self.world)
             self._landing = land
             # each robot's plan for its whole team: peers out of view go along it next step
             self._follow = plan_velocity(G, P, K, self.world)

@@ -538,9 +538,10 @@ def test_a_late_landing_keeps_the_plans_frame_then_the_teams_median_frame() -> N
     """Exact views 3 steps late: the landing's first step asks the plan for its frame once and
     keeps it for ``plan_frame_steps`` steps, whatever the team seen does; then the frame the
     median robot stands in, which a robot held off its slot does not move (the centroid frame
-    moves by its share of the way it is off); the same step again redoes it, a gap starts a new
-    landing, which asks again. Under noise: the centroid frame from the start."""
-    from runtime.decision.settle import Lander, median_frame, settle_for
+    moves by its share of the way it is off), at the slots the team of one moment gives every
+    robot alike; the same step again redoes it, a gap starts a new landing, which asks again.
+    Under noise: the centroid frame from the start, at the robot's own slots."""
+    from runtime.decision.settle import Lander, median_frame, settle_for, shared_slots
 
     s = settle_for(Conditions(latency_steps=3))
     assert s is not None
@@ -551,10 +552,13 @@ def test_a_late_landing_keeps_the_plans_frame_then_the_teams_median_frame() -> N
         asked.append(team.copy())
         return np.array([7.0, 7.0])
 
+    def shared(team: np.ndarray) -> np.ndarray:
+        return points[shared_slots(team, points - points.mean(axis=0))]
+
     held = points - points.mean(axis=0) + [2.0, 1.0]  # formed around (2, 1) but one robot
     held[3] += [0.0, 0.3]  # held 0.3 m off its slot
     lander = Lander(s, 0.1)
-    frames = [lander.frame(held + np.array([0.0, 0.01 * t]), points, t, np.zeros(2), planned)
+    frames = [lander.frame(held + np.array([0.0, 0.01 * t]), points, t, np.zeros(2), planned)[0]
               for t in range(s.plan_frame_steps + 2)]
     assert len(asked) == 1 and np.allclose(asked[0], held)
     assert all(np.allclose(f, [7.0, 7.0]) for f in frames[:s.plan_frame_steps])
@@ -563,14 +567,21 @@ def test_a_late_landing_keeps_the_plans_frame_then_the_teams_median_frame() -> N
     assert np.allclose(held.mean(axis=0), [2.0, 1.075])  # where the centroid frame would walk
     assert np.allclose(median_frame(held, points + 5.0), [2.0, 1.0])  # any translation
     t += 1
-    assert np.allclose(lander.frame(held, points, t, np.zeros(2), planned), [2.0, 1.0])
-    assert np.allclose(lander.frame(held, points, t + 5, np.zeros(2), planned), [7, 7])
+    # robots 0 and 1 held to each other's slots (one robot's hysteresis): one moment's
+    # assignment gives them back their own
+    swapped = points[[1, 0, 2, 3]]
+    frame, pts = lander.frame(held, swapped, t, np.zeros(2), planned, shared)
+    assert np.allclose(pts, points) and np.allclose(frame, [2.0, 1.0])
+    assert np.allclose(lander.frame(held, points, t + 5, np.zeros(2), planned)[0], [7, 7])
     assert len(asked) == 2  # a new landing
     noisy = settle_for(Conditions(noise_m=0.05), estimator=True)
     assert noisy is not None  # under noise the centroid frame from the start, never the plan
     start = np.full(2, 3.0)
-    assert np.allclose(Lander(noisy, 0.1).frame(held, points, 0, start, planned), start)
+    frame, pts = Lander(noisy, 0.1).frame(held, swapped, 0, start, planned, shared)
+    assert np.allclose(frame, start) and pts is swapped
     assert len(asked) == 2
+    batch = shared_slots(np.stack([held, held[[1, 0, 2, 3]]]), points - points.mean(axis=0))
+    assert batch.tolist() == [[0, 1, 2, 3], [1, 0, 2, 3]]
 
 
 def test_the_landing_sees_the_centroid_in_the_raw_views() -> None:
