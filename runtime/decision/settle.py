@@ -166,7 +166,7 @@ bound at n = 10 (600 other episodes: 1.072x -> 1.051x, the perfect world's 1.048
 1.077x at n = 25 and 1.163x -> 1.133x at n = 50. Two and three steps late it still needs the
 frame: without it, n = 25, 40 episodes, 97.5 % and 90 % held.
 
-**The plan's frame, kept, then the median robot's.** The centroid frame costs its step
+**The plan's frame, kept, then the team's core's.** The centroid frame costs its step
 because it starts where the team is, short of where the plan puts it; the plan's own frame,
 followed to the end, walks with every robot the guard holds back. A landing on exact late
 views now keeps the plan's frame as it stands on the landing's first step, for
@@ -184,32 +184,34 @@ steps late; robots that start their landings a step apart ask from two moments);
 from the peers carried to now, kept for the same steps, 1.079x / 1.121x at three steps late;
 starting the landing a step earlier or keeping the frame 4 steps changed nothing.
 
-A team still landing after that lands in the frame its median robot stands in
-(:func:`median_frame`: per axis the median of each robot's position less its slot point, the
-team seen of one moment), not the centroid frame. Where the guard holds a robot off its slot
-(the cross's centre, between four neighbours), the centroid frame moves by the robot's share
-of the way it is off, every step, and the team walks after it: `launch --robots 8 --conditions
-latency_steps=3 --estimator`, seed 15, walked 4 m and left the cross unformed in 400 steps.
-The median frame moves only when most of the team is off its slots the same way. Measured on
-`launch --robots 8 --estimator` (circle, cross, line, heart; seeds 4-16, 52 patterns):
-3 steps late 2,890 steps and 2 patterns not formed before the plan's frame, 2,800 and 1 with
-it and the centroid frame after, 1,935 and 0 with the median frame after; 2 steps late 3,102
-and 2 -> 1,689 and 0 -> 1,551 and 0; 0 collisions. ``benchmarks/conditions.py`` (random starts,
-where few landings last past the kept frame) is unchanged by it at n = 10 and n = 25; at n = 50
-one circle of 100 episodes, a robot caught inside the landed ring, took 156 steps where the
-centroid frame's walk freed it in 84 (bound 26): 1.177x -> 1.205x the lower bound.
+A team still landing after that lands in the frame of its core (:func:`core_frame`: each
+robot's position less its slot point, the team seen of one moment, averaged over the robots
+within ``CORE_M`` (0.2 m) of the median robot's) at the slots that moment gives every robot
+alike (:func:`shared_slots`, solved cold), not the centroid frame at the robot's own slots.
 
-Past the kept frame the landing also takes its slots from the team of one moment
-(:func:`shared_slots`, solved cold), not from the robot's own assignment. That assignment
-keeps its hysteresis along the robot's own views, which carry its peers along its own plan: in
-`launch --robots 10 --conditions latency_steps=2 --estimator --seed 8` one robot, assigned a
-landed neighbour's slot, saw that neighbour carried toward the slot it had given it, while
-every other robot gave it the free one; it pushed at the neighbour for 400 steps. On exact
-views the team of one moment is the same for every robot, so is its assignment. Measured on
-the same launches (seeds 0-12 with 10 robots, 4-16 with 8; 104 patterns each): 2 steps late
-3,759 -> 3,246 steps, 1 -> 0 patterns not formed; 3 steps late 4,327 -> 4,076, 0 -> 1 (a
-heart, 10 robots, seed 4: half the team held 0.19 m off one way, which moves the median too).
-``benchmarks/conditions.py`` at n = 10 and n = 25 is unchanged by it.
+- *The core.* Where the guard holds a robot off its slot (the cross's centre, between four
+  neighbours), the centroid frame moves by the robot's share of the way it is off, every
+  step, and the team walks after it: `launch --robots 8 --conditions latency_steps=3
+  --estimator`, seed 15, walked 4 m and left the cross unformed in 400 steps. The core leaves
+  that robot out; with every robot in it, as in a team that has formed, it is the centroid
+  frame, which a team landing in it does not move. The median robot's frame alone, tried
+  first, did not walk either, but it moves while the team settles: the team seen 3 steps late
+  is still moving, and 2 of the 52 patterns of `launch --robots 10 --hold-steps 20` (3 steps
+  late, seeds 0-12) did not hold, where the core held all.
+- *One moment's slots.* The robot's own assignment keeps its hysteresis along its own views,
+  which carry its peers along its own plan: with `--robots 10 --conditions latency_steps=2
+  --seed 8` one robot, assigned a landed neighbour's slot, saw that neighbour carried toward
+  the slot it had given it, while every other robot gave it the free one, and it pushed at
+  the neighbour for 400 steps. On exact views the team of one moment is the same for every
+  robot, and so is its assignment.
+
+Measured on `launch --estimator` (circle, cross, line, heart; 10 robots seeds 0-12 and 8
+robots seeds 4-16, 104 patterns; total steps and patterns not formed, 0 collisions): 2 steps
+late 6,089 and 4 before the plan's frame -> 3,588 and 1 now; 3 steps late 6,524 and 5 ->
+4,461 and 0. With `--hold-steps 20` (10 robots): 2 steps late 3,033 steps, 2 not formed and 2
+not held -> 1,753, all held; 3 steps late 2,731, all held -> 2,247, all held.
+``benchmarks/conditions.py`` (random starts, where few landings last past the kept frame) is
+unchanged by the core and the shared slots at n = 10 and n = 25.
 
 **Parked inside the tolerance, on noisy wheels that turn.** A differential-drive base whose
 wheels add noise whenever it moves gains nothing from correcting a few millimetres: to
@@ -247,8 +249,8 @@ from runtime.decision.safety import OrcaParams
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["CENTROID_FRAME", "Lander", "Settle", "centroid_targets", "damp_landing",
-           "landing_gain", "median_frame", "seen_centroid", "seen_team", "settle_for",
+__all__ = ["CENTROID_FRAME", "CORE_M", "Lander", "Settle", "centroid_targets", "core_frame",
+           "damp_landing", "landing_gain", "seen_centroid", "seen_team", "settle_for",
            "shared_slots", "smooth_centroid"]
 
 
@@ -292,9 +294,9 @@ class Settle:
 
     plan_frame_steps: int = 0
     """For this many steps a landing keeps the frame the plan gives the team of one moment
-    as the robot sees it at the landing's first step, then lands in the team's median frame
-    (0: the centroid frame from the start; see "The plan's frame, kept, then the median
-    robot's")."""
+    as the robot sees it at the landing's first step, then lands in the frame of the team's core
+    (0: the centroid frame from the start; see "The plan's frame, kept, then the team's
+    core's")."""
 
     def landed_safety(self, params: OrcaParams) -> OrcaParams:
         """``params`` as a landed robot's filter has them: ``guard_share`` of the guard
@@ -327,8 +329,8 @@ def settle_for(conditions: Conditions, estimator: bool = False,
                world: WorldConfig = DEFAULT_WORLD) -> Settle | None:
     """The landing for a robot sensing under ``conditions`` (None: land as planned): under
     noise damped, in the centroid frame averaged; with exact views 2 or more steps late, in
-    the plan's frame kept, then the median robot's frame as seen, undamped (see "Late views
-    land in the centroid frame" and "The plan's frame, kept, then the median robot's"; one
+    the plan's frame kept, then the frame of the team's core as seen, undamped (see "Late
+    views land in the centroid frame" and "The plan's frame, kept, then the team's core's"; one
     step late lands as planned, see "The centroid of one moment")."""
     if conditions.noise_m <= 0.0:
         late = conditions.latency_steps
@@ -343,6 +345,11 @@ def settle_for(conditions: Conditions, estimator: bool = False,
                   park_m=PARK_SHARE * world.formed_tol_m if parks else 0.0,
                   unpark_m=world.formed_tol_m if parks else 0.0)
 
+
+CORE_M = 0.2
+"""A robot farther than this (m, two full steps) from the median robot's offset when a landing
+outlasts the plan's kept frame is held off its slot and left out of the team's core
+(:func:`core_frame`)."""
 
 LANDS_AS_PLANNED_LATE = 1
 """Exact views at most this many steps late land as planned, not in the centroid frame (see
@@ -409,9 +416,9 @@ class Lander:
         ``points``: :meth:`centroid`'s of the team's centroid (``tick``, ``start`` as there);
         on exact late views (``plan_frame_steps`` > 0) for the landing's first
         ``plan_frame_steps`` steps the centroid of the team's targets that ``planned(team)``
-        gives on its first step, kept, then the :func:`median_frame` of the slot points
+        gives on its first step, kept, then the :func:`core_frame` of the slot points
         ``shared(team)`` gives, an assignment every robot makes alike from the team of one
-        moment (None: ``points``; see "The plan's frame, kept, then the median robot's")."""
+        moment (None: ``points``; see "The plan's frame, kept, then the team's core's")."""
         m = self.centroid(team.mean(axis=0), tick, len(team), start)
         keep = self.settle.plan_frame_steps
         if keep <= 0:
@@ -419,7 +426,7 @@ class Lander:
         if self._k >= keep:
             if shared is not None:
                 points = shared(team)
-            return median_frame(team, points), points
+            return core_frame(team, points, CORE_M), points
         if self._k == 0 or self._frame is None:
             self._frame = np.asarray(planned(team), dtype=np.float64)
         return self._frame, points
@@ -499,15 +506,19 @@ def seen_centroid(pos: Array, me: Any, ref: Array | None) -> Array:
     return out
 
 
-def median_frame(team: Array, points: Array) -> Array:
-    """The frame (..., 2) m, as a centroid for :func:`centroid_targets`, that the team
-    (..., n, 2) stands in by the median robot: per axis the median of each robot's position
-    less its slot point (``points`` (..., n, 2), centred). The centroid frame moves by a
-    robot held off its slot (its share of the way it is off, every step, a walk); this one
-    moves only when most robots are off theirs the same way."""
+def core_frame(team: Array, points: Array, core_m: float) -> Array:
+    """The frame (..., 2) m, as a centroid for :func:`centroid_targets`, of the team's core:
+    each robot's position less its slot point (``points`` (..., n, 2), centred), averaged over
+    the robots within ``core_m`` of the median robot's (per axis the median). With every robot
+    in the core it is the centroid frame, which a team landing in it does not move; a robot
+    held farther off its slot is left out, where the centroid frame moves by its share of the
+    way it is off, every step, and the team walks after it."""
     p = np.asarray(points, dtype=np.float64)
     off = np.asarray(team, dtype=np.float64) - (p - p.mean(axis=-2, keepdims=True))
-    out: Array = np.median(off, axis=-2)
+    away = off - np.median(off, axis=-2, keepdims=True)
+    core = (np.hypot(away[..., 0], away[..., 1]) <= core_m)[..., None]  # the median's own
+    out: Array = (np.where(core, off, 0.0).sum(axis=-2)
+                  / np.maximum(core.sum(axis=-2), 1))
     return out
 
 

@@ -15,7 +15,7 @@ gives each robot of each env what its robot process gives its brain
 3. its slot: the centroid frame (general) or the synchronised plan's frame (plan), which
    under noise lands in the centroid frame, averaged over the landing's steps, for the last
    ``Settle.centroid_steps`` steps (on exact late views in the plan's frame, kept for
-   ``Settle.plan_frame_steps``, then the team's median frame); and its way left to that slot
+   ``Settle.plan_frame_steps``, then the frame of the team's core); and its way left to that slot
    (``to_slot``), by which the world damps its landing;
 4. its row, built by the rows every robot builds (:func:`general_observation`).
 
@@ -39,8 +39,9 @@ from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
 from runtime.decision.rules import plan_targets, plan_velocity
 from runtime.decision.settle import (
+    CORE_M,
     centroid_targets,
-    median_frame,
+    core_frame,
     seen_centroid,
     seen_team,
     settle_for,
@@ -100,8 +101,8 @@ class SensedRows:
         rows, n, 2) they hold: ``m``, their centroids, at the robots' slots; or on exact late
         views for a landing's first ``plan_frame_steps`` steps the centroid of the targets
         the plan gives the team of one moment as the robot sees it on the landing's first
-        step, kept, then the team's median frame at the slots every robot assigns alike from
-        that moment (:meth:`runtime.decision.settle.Lander.frame`)."""
+        step, kept, then the frame of the team's core at the slots every robot assigns alike
+        from that moment (:meth:`runtime.decision.settle.Lander.frame`)."""
         assert self.settle is not None
         pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
         keep = self.settle.plan_frame_steps
@@ -117,10 +118,11 @@ class SensedRows:
             self._plan_frame[first] = target.mean(axis=1)
         kept = self._land_k[land] < keep
         late = ~kept
-        if late.any():  # the landing goes on: one moment's slots, the median robot's frame
+        if late.any():  # the landing goes on: one moment's slots, the team's core's frame
             cc = Cc[land][late]
             pts[late] = np.take_along_axis(cc, shared_slots(team[late], cc)[..., None], axis=1)
-        frame: Array = np.where(kept[:, None], self._plan_frame[land], median_frame(team, pts))
+        core = core_frame(team, pts, CORE_M)
+        frame: Array = np.where(kept[:, None], self._plan_frame[land], core)
         return frame, pts
 
     def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:

@@ -534,14 +534,15 @@ def test_the_landing_averages_the_teams_centroid_over_its_steps() -> None:
     assert float(k) == 4.0  # the way of the farthest, 0.36 m, at 0.1 m a step
 
 
-def test_a_late_landing_keeps_the_plans_frame_then_the_teams_median_frame() -> None:
+def test_a_late_landing_keeps_the_plans_frame_then_the_frame_of_the_teams_core() -> None:
     """Exact views 3 steps late: the landing's first step asks the plan for its frame once and
-    keeps it for ``plan_frame_steps`` steps, whatever the team seen does; then the frame the
-    median robot stands in, which a robot held off its slot does not move (the centroid frame
-    moves by its share of the way it is off), at the slots the team of one moment gives every
-    robot alike; the same step again redoes it, a gap starts a new landing, which asks again.
-    Under noise: the centroid frame from the start, at the robot's own slots."""
-    from runtime.decision.settle import Lander, median_frame, settle_for, shared_slots
+    keeps it for ``plan_frame_steps`` steps, whatever the team seen does; then the frame of the
+    team's core, which a robot held off its slot does not move (the centroid frame moves by its
+    share of the way it is off) and which is the centroid frame where every robot is in it, at
+    the slots the team of one moment gives every robot alike; the same step again redoes it, a
+    gap starts a new landing, which asks again. Under noise: the centroid frame from the start,
+    at the robot's own slots."""
+    from runtime.decision.settle import CORE_M, Lander, core_frame, settle_for, shared_slots
 
     s = settle_for(Conditions(latency_steps=3))
     assert s is not None
@@ -563,9 +564,12 @@ def test_a_late_landing_keeps_the_plans_frame_then_the_teams_median_frame() -> N
     assert len(asked) == 1 and np.allclose(asked[0], held)
     assert all(np.allclose(f, [7.0, 7.0]) for f in frames[:s.plan_frame_steps])
     t = s.plan_frame_steps
-    assert np.allclose(frames[t], [2.0, 1.0 + 0.01 * t])  # the median robot's frame
+    assert np.allclose(frames[t], [2.0, 1.0 + 0.01 * t])  # the core's frame, robot 3 left out
     assert np.allclose(held.mean(axis=0), [2.0, 1.075])  # where the centroid frame would walk
-    assert np.allclose(median_frame(held, points + 5.0), [2.0, 1.0])  # any translation
+    assert np.allclose(core_frame(held, points + 5.0, CORE_M), [2.0, 1.0])  # any translation
+    settling = points - points.mean(axis=0) + [2.0, 1.0]
+    settling[:2] += [[0.05, 0.0], [0.03, 0.01]]  # every robot in the core: the centroid frame
+    assert np.allclose(core_frame(settling, points, CORE_M), settling.mean(axis=0))
     t += 1
     # robots 0 and 1 held to each other's slots (one robot's hysteresis): one moment's
     # assignment gives them back their own
