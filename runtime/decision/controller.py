@@ -242,9 +242,9 @@ class Controller:
 
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
         """Under noise or latency, the last steps of a plan: the team's targets (n, 2) in the
-        frame of its centroid seen raw, as the lander averages it (on exact late views first
-        the plan's frame, kept: :meth:`runtime.decision.settle.Lander.frame`), and the steps
-        left (a 0-d array)."""
+        frame of its centroid seen raw, as the lander averages it (on exact late views the
+        plan's frame, kept, then the frame of the team's core at one moment's slots:
+        :meth:`runtime.decision.settle.Lander.frame`), and the steps left (a 0-d array)."""
         assert self._lander is not None
         m, points = self._lander.frame(
             seen_team(pos, self._me, self._ref), points, self._tick, pos.mean(axis=0),

@@ -116,13 +116,12 @@ class SensedRows:
             target, _ = plan_targets(team[at], C[first], slots[first], self.spec.travel_weight,
                                      self.world)
             self._plan_frame[first] = target.mean(axis=1)
-        kept = self._land_k[land] < keep
-        late = ~kept
+        frame: Array = self._plan_frame[land]
+        late = self._land_k[land] >= keep
         if late.any():  # the landing goes on: one moment's slots, the team's core's frame
             cc = Cc[land][late]
             pts[late] = np.take_along_axis(cc, shared_slots(team[late], cc)[..., None], axis=1)
-        core = core_frame(team, pts, CORE_M)
-        frame: Array = np.where(kept[:, None], self._plan_frame[land], core)
+            frame[late] = core_frame(team[late], pts[late], CORE_M)
         return frame, pts
 
     def rows(self, truth: Array, pattern: Array) -> tuple[F32Array, Array]:
