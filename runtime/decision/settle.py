@@ -513,13 +513,16 @@ def core_frame(team: Array, points: Array, core_m: float) -> Array:
     the robots within ``core_m`` of the median robot's (per axis the median). With every robot
     in the core it is the centroid frame, which a team landing in it does not move; a robot
     held farther off its slot is left out, where the centroid frame moves by its share of the
-    way it is off, every step, and the team walks after it."""
+    way it is off, every step, and the team walks after it. A team with no robot that near the
+    median's (split in two groups apart) is in the median's frame."""
     p = np.asarray(points, dtype=np.float64)
     off = np.asarray(team, dtype=np.float64) - (p - p.mean(axis=-2, keepdims=True))
-    away = off - np.median(off, axis=-2, keepdims=True)
-    core = (np.hypot(away[..., 0], away[..., 1]) <= core_m)[..., None]  # the median's own
-    out: Array = (np.where(core, off, 0.0).sum(axis=-2)
-                  / np.maximum(core.sum(axis=-2), 1))
+    median = np.median(off, axis=-2, keepdims=True)
+    away = off - median
+    core = (np.hypot(away[..., 0], away[..., 1]) <= core_m)[..., None]
+    count = core.sum(axis=-2)
+    mean = np.where(core, off, 0.0).sum(axis=-2) / np.maximum(count, 1)
+    out: Array = np.where(count > 0, mean, median[..., 0, :])  # a team in two: the median
     return out
 
 

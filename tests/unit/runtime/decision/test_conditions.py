@@ -570,6 +570,10 @@ def test_a_late_landing_keeps_the_plans_frame_then_the_frame_of_the_teams_core()
     settling = points - points.mean(axis=0) + [2.0, 1.0]
     settling[:2] += [[0.05, 0.0], [0.03, 0.01]]  # every robot in the core: the centroid frame
     assert np.allclose(core_frame(settling, points, CORE_M), settling.mean(axis=0))
+    split = points - points.mean(axis=0) + [2.0, 1.0]
+    split[:2] += [1.0, 0.0]  # half the team 1 m off one way, half on its slots: no core
+    assert np.allclose(core_frame(split, points, CORE_M), [2.5, 1.0])  # the median's, not 0
+    assert np.allclose(core_frame(np.stack([held, split]), points, CORE_M), [[2, 1], [2.5, 1]])
     t += 1
     # robots 0 and 1 held to each other's slots (one robot's hysteresis): one moment's
     # assignment gives them back their own
