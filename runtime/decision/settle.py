@@ -243,9 +243,9 @@ from typing import Any
 import numpy as np
 
 from runtime.conditions import Conditions
-from runtime.core.assignment import assign_teams
 from runtime.core.plan_frame import steps_left
 from runtime.decision.estimator import steady_sigma
+from runtime.decision.formation import assign_slots_batch, centred
 from runtime.decision.safety import OrcaParams
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -515,8 +515,7 @@ def core_frame(team: Array, points: Array, core_m: float) -> Array:
     held farther off its slot is left out, where the centroid frame moves by its share of the
     way it is off, every step, and the team walks after it. A team with no robot that near the
     median's (split in two groups apart) is in the median's frame."""
-    p = np.asarray(points, dtype=np.float64)
-    off = np.asarray(team, dtype=np.float64) - (p - p.mean(axis=-2, keepdims=True))
+    off = np.asarray(team, dtype=np.float64) - centred(points)
     median = np.median(off, axis=-2, keepdims=True)
     away = off - median
     core = (np.hypot(away[..., 0], away[..., 1]) <= core_m)[..., None]
@@ -526,19 +525,17 @@ def core_frame(team: Array, points: Array, core_m: float) -> Array:
     return out
 
 
-def shared_slots(team: Array, centred: Array) -> IntArray:
+def shared_slots(team: Array, pattern: Array) -> IntArray:
     """The assignment (..., n) of the team (..., n, 2) as one moment shows it
-    (:func:`seen_team`) to the centred pattern ``centred`` (n, 2) or (..., n, 2), solved cold:
-    on exact views every robot makes the same, where the hysteresis each robot keeps along
-    its own views may hold two robots to each other's slots."""
+    (:func:`seen_team`) to ``pattern`` (n, 2) or (..., n, 2), solved cold
+    (:func:`runtime.decision.formation.assign_slots_batch`): on exact views every robot makes
+    the same, where the hysteresis each robot keeps along its own views may hold two robots
+    to each other's slots."""
     t = np.asarray(team, dtype=np.float64)
-    n = t.shape[-2]
-    flat = np.ascontiguousarray(t.reshape(-1, n, 2))
-    cc = np.array(np.broadcast_to(np.asarray(centred, dtype=np.float64), t.shape),
-                  order="C").reshape(-1, n, 2)  # a writable copy, as the solver takes it
-    out = np.zeros(flat.shape[:2], dtype=np.int64)
-    assign_teams(flat, cc, out, False, np.zeros(flat.shape[:2]), out)
-    slots: IntArray = out.reshape(t.shape[:-1])
+    flat = t.reshape(-1, *t.shape[-2:])
+    slots: IntArray = assign_slots_batch(
+        flat, np.broadcast_to(np.asarray(pattern, dtype=np.float64), t.shape).reshape(flat.shape)
+    ).reshape(t.shape[:-1])
     return slots
 
 
