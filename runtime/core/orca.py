@@ -333,11 +333,13 @@ class OrcaFilter:
         closed since, which its late view let it take (a bound below zero: a retreat), and
         both robots then end the step no closer than they were seen. The bound holds along
         ``u`` and along the two edges of the cone the peer may lie in,
-        ``asin((guard_m - 2R') / D)``, for the error of a noisy view. A peer whose last
-        update was lost (the two robots' views then differ in age) is also bounded from
-        where the robot stands now, as if the peer had come ``guard_ref[..., 4]`` (m, the
-        way it may have come since it was seen; 0: seen on time) straight at it, within half
-        the room.
+        ``asin((guard_m - 2R') / D)``, for the error of a noisy view. Where the peer's
+        last update was lost, the two robots' views differ in age: this robot pairs the
+        peer's last view with its own pose of the freshest age a view can have (the
+        latency's), the moment its peer's bound counts from, and the peer may lie
+        ``guard_ref[..., 4]`` (m; 0: seen on time) off its view, the way it may have come
+        unseen in between: the room shrinks by it and the cone widens by it,
+        ``asin((guard_m - 2R' + unseen) / D)``.
         Without ``guard_ref`` the pair is taken as it is in ``pos``. The guard projects the
         velocity on each bound in turn (:data:`GUARD_PASSES` rounds) and clamps it to v_max;
         where the rounds do not settle (retreats from two sides at once), it scales the
@@ -533,25 +535,18 @@ class OrcaFilter:
         room: cython.double
         has_ref: cython.bint = ref.shape[0] > 0
         share: cython.double
-        rr: cython.Py_ssize_t
-        for rr in range(2 * m if has_ref else m):
-            c = rr % m
+        for c in range(m):
             j = self._ids[a, b, c]
             unseen = 0.0
             share = 0.5
-            if rr >= m:  # a peer whose update was lost: from here, now, to where it was seen,
-                unseen = ref[e, j, 4]  # less the way it may have come meanwhile, unseen
-                if not unseen > 0.0:
-                    continue  # seen on time: its view's bound is enough
-                sx = pos[e, i, 0]
-                sy = pos[e, i, 1]
-                ux = ref[e, j, 0] - sx
-                uy = ref[e, j, 1] - sy
-            elif has_ref:  # the pair as last seen, and where this robot stood then
+            if has_ref:  # the pair as last seen, and where this robot stood then
                 sx = ref[e, j, 2]
                 sy = ref[e, j, 3]
                 ux = ref[e, j, 0] - sx
                 uy = ref[e, j, 1] - sy
+                unseen = ref[e, j, 4]  # the way a peer whose update was lost may have come
+                if not unseen > 0.0:
+                    unseen = 0.0
                 share = ref[e, j, 5]
                 if not isfinite(share):
                     share = 0.5

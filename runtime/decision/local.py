@@ -25,7 +25,12 @@ from runtime.conditions import Conditions
 from runtime.core.orca import GUARD_REF_COLUMNS
 from runtime.decision.controller import Controller
 from runtime.decision.estimator import PeerTracker
-from runtime.decision.safety import OrcaParams, guard_shares, uncertainty_params
+from runtime.decision.safety import (
+    MARGIN_SIGMAS,
+    OrcaParams,
+    guard_shares,
+    uncertainty_params,
+)
 from runtime.decision.sensing import Sensor
 from runtime.decision.settle import settle_for
 from runtime.types import Array, BoolArray, IntArray
@@ -62,10 +67,11 @@ class Seen:
     vel: Array | None = None
     """(B, n, 2) m/s: the team's velocities (None: frame differences)."""
     guard_ref: Array | None = None
-    """(B, n, 6): each peer as last sensed and where the robot stood when it was (m), where
-    the peer's last update was lost (older than the latency) the way it may have come since
-    (m, its age at full speed; else 0), and the robot's share of the pair's room (0.5: half;
-    :meth:`Perception.perceive`), for the filter's guard
+    """(B, n, 6): each peer as last sensed and where the robot stood when it was (m; where
+    the peer's last update was lost, older than the latency, where the robot stood the
+    latency's age ago), the way the peer may have come unseen in between (m, at full speed
+    for the steps its view is older; else 0), and the robot's share of the pair's room (0.5:
+    half; :meth:`Perception.perceive`), for the filter's guard
     (:meth:`runtime.core.orca.OrcaFilter.robot`; None: both as they are now)."""
 
     def row(self, b: int) -> Seen:
@@ -103,6 +109,10 @@ class Perception:
         c = conditions
         self._lost_steps = 0 if c.loss <= 0 else c.latency_steps + math.ceil(
             math.log(LOST_TAIL) / math.log(c.loss))
+        self._unseen_step_m = (self.reach_m * (1.0 + c.gain_noise)
+                               + MARGIN_SIGMAS * c.act_noise_mps * world.dt_s)
+        """The most a peer may move in a step (m): a full step, what the wheels' gain may add
+        to it and their noise, bounded as the safety filter bounds it."""
         self.exact_pairs = (self.tracker is not None and c.noise_m <= 0.0 and c.loss <= 0.0
                             and c.own_latency_steps == 0)
         """Whether both robots of a pair know it exactly as it was last seen (no noise, no
@@ -178,13 +188,16 @@ class Perception:
                 self._own_restart[:] = False
         ref = np.empty((*view.shape[:2], GUARD_REF_COLUMNS))
         ref[..., 5] = self._shares(view, age, step)
-        # an update lost: also bounded from now, as if the peer had come all its age's way
-        # (a peer out of range, or beyond the k nearest, is far: only loss hides a near one)
-        ref[..., 4] = np.where(age > self.conditions.latency_steps,
-                               np.minimum(np.maximum(age, 0), self._lost_steps) * self.reach_m,
-                               0.0)
+        # an update lost: the view is paired with the robot's own pose of the latency's age,
+        # the moment the peer's own bound counts from where its view came on time, and the
+        # peer may lie the way it could have come unseen in between off it (a peer out of
+        # range, or beyond the k nearest, is far: only loss hides a near one)
+        late = self.conditions.latency_steps
+        lost = (age > late) & (self._lost_steps > 0)
+        ref[..., 4] = np.where(lost, (np.minimum(age, self._lost_steps) - late)
+                               * self._unseen_step_m, 0.0)
         ref[..., 0:2] = view  # as sensed: noisier than the tracker, but never lagging
-        a = np.clip(age, 0, GUARD_HISTORY_STEPS - 1)
+        a = np.clip(np.where(lost, late, age), 0, GUARD_HISTORY_STEPS - 1)
         ref[..., 2:4] = self._own[a, np.arange(B)[:, None]]
         old = age >= GUARD_HISTORY_STEPS  # seen too long ago: the estimate now, as it is
         if old.any():

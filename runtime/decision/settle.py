@@ -342,7 +342,8 @@ def settle_for(conditions: Conditions, estimator: bool = False,
     sigma = steady_sigma(conditions.noise_m) if estimator else conditions.noise_m
     parks = conditions.kinematics == "diff" and conditions.act_noise_mps > 0.0
     return Settle(radius_m=min(SETTLE_SIGMAS * sigma, 0.5 * world.max_step_m),
-                  gain=SETTLE_GAIN, sigma_m=conditions.noise_m,
+                  gain=SETTLE_GAIN, centroid_steps=NOISY_LANDING_STEPS,
+                  sigma_m=conditions.noise_m,
                   park_m=PARK_SHARE * world.formed_tol_m if parks else 0.0,
                   unpark_m=world.formed_tol_m if parks else 0.0)
 
@@ -351,6 +352,11 @@ CORE_M = 0.2
 """A robot farther than this (m, two full steps) from the median robot's offset when a landing
 outlasts the plan's kept frame is held off its slot and left out of the team's core
 (:func:`core_frame`)."""
+
+NOISY_LANDING_STEPS = 6.0
+"""Under noise a synchronised plan with this many steps left or fewer lands in the centroid
+frame, averaged, every robot of it landed (``Settle.centroid_steps``; see "The landing's six
+steps")."""
 
 LANDS_AS_PLANNED_LATE = 1
 """Exact views at most this many steps late land as planned, not in the centroid frame (see

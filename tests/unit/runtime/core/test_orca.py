@@ -460,12 +460,16 @@ def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
     ref = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], [0.55, 0.0, -0.15, 0.0, 0.0, 0.5]]
     vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
     assert vx == pytest.approx(0.05 / DT)
-    ref[1][4] = 0.05  # an update lost, and it may have come 5 cm since: from here, now,
-    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)  # (0.55 - 0.05 - G) / 2: looser
-    assert vx == pytest.approx(0.05 / DT)
-    ref[1][4] = 0.2  # 20 cm: (0.55 - 0.2 - G) / 2 = 0.025 m left, whatever it seems to do now
-    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
+    ref[1][4] = 0.05  # an update lost: the peer may have come 5 cm unseen since the view,
+    vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)  # (0.7 - 0.05 - G) / 2 - 0.15
     assert vx == pytest.approx(0.025 / DT)
+    ref[1][4] = 0.2  # 20 cm: (0.7 - 0.2 - G) / 2 - 0.15 < 0: it gives 5 cm back, along the
+    vx, vy = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)  # cone the 20 cm widen
+    sn = (G - R + 0.2) / 0.7
+    cs = math.sqrt(1 - sn * sn)
+    for wx, wy in ((1.0, 0.0), (cs, sn), (cs, -sn)):
+        assert vx * wx + vy * wy <= -0.05 / DT + 1e-9
+    assert math.hypot(vx, vy) <= V_MAX
 
 
 @pytest.mark.parametrize(("share", "left_m"), [(0.6, 0.09), (0.3, -0.03), (0.5, 0.05),
@@ -473,7 +477,7 @@ def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
 def test_the_guard_gives_the_robot_its_share_of_the_room(share: float, left_m: float) -> None:
     """Seen 0.7 m away with 0.15 m closed since: of ``share`` of the room then,
     ``share (0.7 - G)``, what is left this step (a share not finite is half, one below 0
-    none); a lost update's bound from here stays at half the room. Where the robot has
+    none); a lost update's way unseen shrinks the room it shares. Where the robot has
     closed more than its share, it gives the rest back, along the seen direction and both
     edges of the cone (so a little more along the direction), at most at full speed."""
     ref = [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], [0.55, 0.0, -0.15, 0.0, 0.0, share]]
@@ -485,10 +489,10 @@ def test_the_guard_gives_the_robot_its_share_of_the_room(share: float, left_m: f
         assert vx == pytest.approx(max(left_m / DT / math.sqrt(1 - sn * sn), -V_MAX),
                                    rel=1e-4)
         assert abs(vy) < 1e-3 and math.hypot(vx, vy) <= V_MAX
-    if share == 0.6:  # from here, now: (0.55 - 0.1 - G) / 2 = 0.075 m, less than its share
+    if share == 0.6:  # an update lost, 10 cm unseen: 0.6 (0.7 - 0.1 - G) - 0.15 = 0.03 m
         ref[1][4] = 0.1
         vx, _ = guarded([0.9, 0.0], [1.0, 0.0], (1.0, 0.0), ref)
-        assert vx == pytest.approx(0.075 / DT)
+        assert vx == pytest.approx(0.03 / DT)
 
 
 @pytest.mark.parametrize("gain", [0.0, 0.1, 0.3])

@@ -419,6 +419,51 @@ def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
         assert np.abs(share - 0.5).max() <= GUARD_SHARE_RATE + 1e-12
 
 
+@pytest.mark.parametrize("spec", ["realistic", "loss=0.3,latency_steps=2"])
+def test_a_lost_update_pairs_the_view_with_the_own_pose_of_the_latencys_age(spec: str) -> None:
+    """A peer whose last update was lost is paired, for the guard, with where the robot stood
+    the latency's age ago (the moment its peer's own bound counts from when its view came on
+    time), and may lie the way it could have come unseen since its view off it: a full step,
+    what the wheels' gain adds and their noise, for each step the view is older than the
+    latency, counted up to the lost run the guard covers. A peer seen on time is paired with
+    the robot's pose of its view's age, and nothing unseen."""
+    from runtime.decision.local import LOST_TAIL, Perception
+
+    n = 6
+    cond = parse_conditions(spec)
+    late = cond.latency_steps
+    covered = late + math.ceil(math.log(LOST_TAIL) / math.log(cond.loss))
+    per = Perception(cond, np.arange(n), [np.random.SeedSequence((4, i)) for i in range(n)],
+                     estimator=True)
+    rng = np.random.default_rng(2)
+    team = rng.uniform(-1.5, 1.5, (n, 2))
+    step = rng.uniform(-0.09, 0.09, (n, 2))
+    path = []
+    reach = 0.1 * (1.0 + cond.gain_noise) + 2.0 * cond.act_noise_mps * 0.1
+    lost_seen = 0
+    for _ in range(40):
+        path.insert(0, team.copy())
+        seen = per.perceive(np.repeat(team[None], n, axis=0))
+        age = per.last_age
+        assert seen.guard_ref is not None and age is not None
+        for b in range(n):
+            for j in range(n):
+                a = int(age[b, j])
+                if j == b or a >= len(path):
+                    continue
+                ref = seen.guard_ref[b, j]
+                if a > late:  # lost: the own pose of the latency's age, and the way unseen
+                    lost_seen += 1
+                    np.testing.assert_allclose(ref[2:4], path[late][b], atol=1e-12)
+                    unseen = (min(a, covered) - late) * reach
+                    assert ref[4] == pytest.approx(unseen, abs=1e-12) and ref[4] > 0.0
+                else:
+                    np.testing.assert_allclose(ref[2:4], path[a][b], atol=1e-12)
+                    assert ref[4] == 0.0
+        team = team + step
+    assert lost_seen > 20
+
+
 def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None:
     from runtime.decision.settle import Lander, settle_for
 
@@ -485,7 +530,7 @@ def test_a_differential_drive_on_noisy_wheels_parks_inside_the_tolerance(
         monkeypatch.setattr(local, "settle_for", orig if parks else (
             lambda c, e=False, world=DEFAULT_WORLD: dataclasses.replace(
                 orig(c, e, world), park_m=0.0, unpark_m=0.0)))
-        r = evaluate_brain(load_brain("rule:frame-balanced"), "circle", 8, 12, seed=5,
+        r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 8, 12, seed=5,
                            conditions=PRESETS["harsh"], estimator=True, hold_steps=20,
                            progress=False, world=wide)
         assert r.formed_rate == 1.0 and r.collisions == 0
