@@ -253,14 +253,15 @@ def guard_bound(conditions: Conditions, world: WorldConfig = DEFAULT_WORLD) -> f
     two independent Gaussian errors whose bounds add in quadrature: the pair's approach is
     off by the mean of the two robots' view errors plus each one's actuation error (at 5 cm
     of noise and 2 cm/s of actuation noise 0.053 m per robot, where their sum was 0.057 m).
-    Latency is not in it: the
-    guard pairs each view with the robot's own pose of its age, so a late or lost view
-    needs no margin of its own. It did keep the bound's latency term as slack while a pair
-    already inside the guard kept only the approach its late view had let it make: the
-    charging adversary of ``benchmarks/conditions.py`` (n = 10, 100 episodes) collided 3.98
-    times per episode on views 3 steps late without it. Since such a robot gives that
-    approach back (:meth:`runtime.core.orca.OrcaFilter.robot`), none does without the slack,
-    and `rule:frame-balanced` + the tracker took 1.115x -> 1.101x the steps lower bound. A
+    Latency is not in it: the guard pairs each view with the robot's own pose of its age, so a
+    late view needs no margin of its own (a lost one, older than the latency, counts per peer
+    the way its peer may have come unseen since:
+    :meth:`runtime.decision.local.Perception.perceive`). It did keep the bound's latency term as
+    slack while a pair already inside the guard kept only the approach its late view had let it
+    make: the charging adversary of ``benchmarks/conditions.py`` (n = 10, 100 episodes) collided
+    3.98 times per episode on views 3 steps late without it. Since such a robot gives that
+    approach back (:meth:`runtime.core.orca.OrcaFilter.robot`), none does without the slack, and
+    `rule:frame-balanced` + the tracker took 1.115x -> 1.101x the steps lower bound. A
     differential drive's sideways error is not in it: the guard bounds what the wheels will
     drive along the heading (:meth:`runtime.core.orca.OrcaFilter.guard_scale`); nor is the
     wheels' gain spread, which bounds the command instead (``OrcaParams.guard_gain``)."""
