@@ -81,9 +81,11 @@ Choices, all documented here:
   each robot keeps its approach to each neighbour, counted from the pair as it last saw it,
   within half the room above ``2 (R + radius_margin_m + guard_margin_m)``, along the seen
   direction and the two edges of the cone a noisy view leaves. It needs distances only:
-  a late or lost view is paired with the robot's own pose of the same age, so latency
-  needs no margin; the margin is :data:`GUARD_SIGMAS` of the raw noise plus the wheels'
-  noise (:func:`guard_bound`), and the bounds on the command are divided by one plus the
+  a late view is paired with the robot's own pose of the same age, so latency needs no
+  margin (a lost one, older than the latency, with the robot's pose of the latency's age,
+  its peer taken to have come its unseen way meanwhile); the margin is
+  :data:`GUARD_SIGMAS` of the raw noise plus the wheels' noise (:func:`guard_bound`), and
+  the bounds on the command are divided by one plus the
   wheels' gain spread (``OrcaParams.guard_gain``), which errs in proportion to the step
   asked: a landing's short steps keep nearly all their room, where a full step's gain
   error added to the guard's distance had cost every step of every pair. With the sensing
