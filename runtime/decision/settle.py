@@ -241,8 +241,8 @@ the plan and averages the centroid over more views. Measured on ``benchmarks/con
 the charging adversary's included, which has no plan and keeps the full guard):
 
 - n = 10: the realistic preset 99 % at 1.235x the steps lower bound -> 100 % at 1.209x, 10 cm
-  noise 97 % at 1.384x -> 100 % at 1.277x, 5 cm 1.134x -> 1.130x; ``harsh`` 58 % at 3.7x ->
-  70 % at 2.9x.
+  noise 97 % at 1.384x -> 100 % at 1.277x, 5 cm 1.134x -> 1.130x; ``harsh`` 52 % (88 %
+  formed) at 5.1x -> 59 % (100 % formed) at 2.8x, with the lost updates' reference.
 - n = 25: the realistic preset 1.364x -> 1.313x, 10 cm 1.593x -> 1.401x.
 - n = 50 (40 episodes): the realistic preset 95 % at 1.475x -> 97.5 % at 1.410x, 10 cm
   1.818x -> 1.517x.
