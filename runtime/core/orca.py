@@ -291,7 +291,7 @@ class OrcaFilter:
         self._out = np.zeros(2)
         self._found = np.zeros(2)
         self._no_ref = np.zeros((0, 0, 0))
-        self._bound = np.zeros((6 * k, 4))
+        self._bound = np.zeros((3 * k, 4))  # each neighbour: its direction and the cone's edges
 
     def _tables(self, E: int, n: int) -> None:
         """The neighbour tables (E, n, max_neighbours), kept while E and n stay."""
