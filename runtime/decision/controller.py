@@ -32,7 +32,15 @@ from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame, plan_targets, plan_velocity
 from runtime.decision.safety import OrcaParams, landing, make_filter
-from runtime.decision.settle import Lander, Settle, centroid_targets, seen_team, shared_slots
+from runtime.decision.settle import (
+    Lander,
+    Settle,
+    centroid_targets,
+    landing_steps,
+    pace_velocity,
+    seen_team,
+    shared_slots,
+)
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -87,9 +95,11 @@ class Controller:
         self._to_slot: float | None = None  # the robot's way left to its slot under a plan
         self._me = 0  # the robot deciding, and its raw views (the landing's centroid)
         self._ref: Array | None = None
-        self._team_plan: tuple[Array, Array, float] | Array | None = None
-        """The last decision's plan for the team: (targets, positions, steps left), or the
-        team rule's velocities; None without a plan (see :attr:`team_velocity`)."""
+        self._team_plan: tuple[Array, Array, Array] | Array | None = None
+        """The last decision's plan for the team: (targets, positions, steps left: the team's,
+        or in a landing at its own pace each robot's), or the team rule's velocities; None
+        without a plan (see :attr:`team_velocity`)."""
+        self._pace = 0.0  # the steps left the robot's own row reads (its pace)
         self.reset()
 
     @property
@@ -102,7 +112,8 @@ class Controller:
         if plan is None or not isinstance(plan, tuple):
             return plan
         target, pos, k = plan
-        return plan_velocity(target, pos, k, self.world)
+        return pace_velocity(target, pos, k, self.world) if k.ndim else plan_velocity(
+            target, pos, k, self.world)
 
     # ---------------------------------------------------------------- state
 
@@ -213,9 +224,13 @@ class Controller:
             if self._lander is not None and self._lander.settle.lands_in_centroid(k):
                 target, kk = self._landing_plan(pos, pts)
                 k = float(kk)
+                each = landing_steps(target, pos, kk, self._lander.settle, self.world)
+                self._team_plan = (target, pos, each)
+                self._pace = float(each[i])
             else:
                 target = pts + np.array([tx, ty])
-            self._team_plan = (target, pos, k)
+                self._team_plan = (target, pos, np.asarray(k))
+                self._pace = k
             sx, sy = target[i].tolist()
             self._to_slot = math.hypot(sx - pos[i, 0], sy - pos[i, 1])
             return sx, sy, k
@@ -270,20 +285,24 @@ class Controller:
         if team is not None:  # a team rule plans from the poses
             c = np.asarray(self._pattern_obj, dtype=np.float64)
             out, k = team(P, c[None], slots[None])
+            way = None
             if self._lander is not None and self._lander.settle.lands_in_centroid(k[0]):
                 target, kk = self._landing_plan(P[0], c[slots])  # landing under noise
-                out, k = plan_velocity(target, P[0], kk, self.world)[None], kk[None]
+                each = landing_steps(target, P[0], kk, self._lander.settle, self.world)
+                out, k = pace_velocity(target, P[0], each, self.world)[None], kk[None]
+                way = math.hypot(*(target[i] - P[0, i]).tolist())
             team_v: Array = np.asarray(out, dtype=np.float64)[0]
             self._team_plan = team_v
             vx, vy = team_v[i].tolist()
-            self._to_slot = math.hypot(vx, vy) * float(k[0]) * self.world.dt_s
+            self._to_slot = (math.hypot(vx, vy) * float(k[0]) * self.world.dt_s
+                             if way is None else way)
             return vx, vy, float(k[0])
         if not spec.needs_slots:  # the paper's observation
             obs = observe(spec, self._frames, None, (i,), self.world)
             vx, vy = np.asarray(brain.act(obs), dtype=np.float64)[0].tolist()
             return vx, vy, None
         sx, sy, steps_left = self._target(i, P[0], slots, cx, cy)
-        pace = 0.0 if steps_left is None else steps_left * self._reach
+        pace = 0.0 if steps_left is None else self._pace * self._reach
         if spec.memory_dim:  # the row and the memory in, the action and the next memory out
             self._rows.robot_f64(0, i, P, V, sx, sy, pace, self._row)
             act, self._memory = brain.act_memory(self._row[0], self._memory_in)  # type: ignore[attr-defined]

@@ -280,8 +280,8 @@ from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["CENTROID_FRAME", "CORE_M", "Lander", "Settle", "centroid_targets", "core_frame",
-           "damp_landing", "landing_gain", "seen_centroid", "seen_team", "settle_for",
-           "shared_slots", "smooth_centroid"]
+           "damp_landing", "landing_gain", "landing_steps", "pace_velocity", "seen_centroid",
+           "seen_team", "settle_for", "shared_slots", "smooth_centroid"]
 
 
 @dataclass(frozen=True)
@@ -321,6 +321,10 @@ class Settle:
     robot in the landing, under noise as with late exact views)."""
     guard_share: float = 0.5
     """The share of the safety filter's guard margin a landed robot keeps."""
+
+    own_pace: bool = False
+    """In the landing every robot goes its own way to its slot at its own pace, its own steps
+    left, not the team's (under noise; see "Each at its own pace")."""
 
     plan_frame_steps: int = 0
     """For this many steps a landing keeps the frame the plan gives the team of one moment
@@ -372,7 +376,7 @@ def settle_for(conditions: Conditions, estimator: bool = False,
     parks = conditions.kinematics == "diff" and conditions.act_noise_mps > 0.0
     return Settle(radius_m=min(SETTLE_SIGMAS * sigma, 0.5 * world.max_step_m),
                   gain=SETTLE_GAIN, centroid_steps=NOISY_LANDING_STEPS,
-                  sigma_m=conditions.noise_m,
+                  sigma_m=conditions.noise_m, own_pace=True,
                   park_m=PARK_SHARE * world.formed_tol_m if parks else 0.0,
                   unpark_m=world.formed_tol_m if parks else 0.0)
 
@@ -586,6 +590,28 @@ def centroid_targets(pos: Array, points: Array, centroid: Array,
     far = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2).max(axis=-1)
     k: Array = steps_left(far, world.v_max_mps * world.dt_s)
     return target, k
+
+
+def landing_steps(target: Array, pos: Array, team_steps: Any, settle: Settle,
+                  world: WorldConfig = DEFAULT_WORLD) -> Array:
+    """Each robot's steps left in a landing (..., n): with ``settle.own_pace`` its own, those
+    of its way to its ``target`` at v_max (at least 1), else its team's ``team_steps``
+    (...,), as :func:`centroid_targets` gives them."""
+    d = np.asarray(target, dtype=np.float64) - np.asarray(pos, dtype=np.float64)
+    if settle.own_pace:
+        own: Array = steps_left(np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2),
+                                world.v_max_mps * world.dt_s)
+        return own
+    return np.broadcast_to(np.asarray(team_steps, dtype=np.float64)[..., None], d.shape[:-1])
+
+
+def pace_velocity(target: Array, pos: Array, steps: Array,
+                  world: WorldConfig = DEFAULT_WORLD) -> Array:
+    """Velocities (..., n, 2) m/s: each robot's way to its ``target`` over its own ``steps``
+    (..., n) (:func:`runtime.decision.rules.plan_velocity` with one K per robot)."""
+    out: Array = (np.asarray(target, dtype=np.float64) - np.asarray(pos, dtype=np.float64)) \
+        / (np.asarray(steps, dtype=np.float64)[..., None] * world.dt_s)
+    return out
 
 
 def landing_gain(far_m: Any, settle: Settle) -> Any:

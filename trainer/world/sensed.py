@@ -37,11 +37,13 @@ from runtime.conditions import Conditions
 from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
-from runtime.decision.rules import plan_targets, plan_velocity
+from runtime.decision.rules import plan_targets
 from runtime.decision.settle import (
     CORE_M,
     centroid_targets,
     core_frame,
+    landing_steps,
+    pace_velocity,
     seen_centroid,
     seen_team,
     settle_for,
@@ -147,6 +149,7 @@ class SensedRows:
                 self._potentials[sel], slots[sel] = pot, out
         self._slots, self._has_prev[:] = slots, True
         K: Array = np.ones(E * n)
+        pace: Array = K
         if self.spec.name == "plan":
             G, K = plan_targets(P, C, slots, self.spec.travel_weight, self.world)
             land = (np.zeros(len(K), dtype=bool) if self.settle is None
@@ -166,14 +169,19 @@ class SensedRows:
                 frame, pts = self._frame(land, cont, m, P, C, Cc, slots, seen.guard_ref)
                 G[land], K[land] = centroid_targets(P[land], pts, frame, self.world)
             self._landing = land
+            each = np.repeat(K[:, None], n, axis=1)  # each robot's steps left: the team's,
+            if land.any():  # or in a landing at its own pace its own
+                assert self.settle is not None
+                each[land] = landing_steps(G[land], P[land], K[land], self.settle, self.world)
             # each robot's plan for its whole team: peers out of view go along it next step
-            self._follow = plan_velocity(G, P, K, self.world)
+            self._follow = pace_velocity(G, P, each, self.world)
             mine = np.arange(E * n), np.tile(self._eye, E)
             self.to_slot = np.hypot(*(G[mine] - P[mine]).T).reshape(E, n)
+            pace = each[mine]  # the robot's own row reads its own
         else:
             G = np.take_along_axis(Cc, slots[..., None], axis=1) + P.mean(axis=1, keepdims=True)
         obs = general_observation(P, P - V * self.world.dt_s, G, self.spec.k_neighbours,
-                                  self.world, steps_left=K if self.spec.name == "plan" else None,
-                                  dtype=np.float32)
+                                  self.world, steps_left=pace if self.spec.name == "plan"
+                                  else None, dtype=np.float32)
         own = obs.reshape(E, n, n, -1)[:, self._eye, self._eye]  # robot i's row of its team
         return np.ascontiguousarray(own), K.reshape(E, n)

@@ -65,8 +65,9 @@ def test_a_spec_of_several_fields_is_one_case_and_a_bad_one_a_one_line_error() -
 
 def test_harsh_forms_sooner_where_the_shapes_lie_outside_the_guard(bench: ModuleType) -> None:
     """Under ``harsh`` the guard keeps 0.45 m: a circle of 8 at the built-ins' 0.40 m forms
-    only as the noise lets neighbours through, in more than twice the steps over the lower
-    bound of the same circle at 0.6 m, which forms in each of these 4 episodes."""
+    only as the noise lets neighbours through, in a quarter more steps over the lower bound
+    than the same circle at 0.6 m or more (1.5x in these 4 episodes since the landing goes
+    at each robot's own pace; more than 2x before), which forms in each of them."""
     from dataclasses import replace
 
     from runtime.world_config import DEFAULT_WORLD
@@ -74,7 +75,7 @@ def test_harsh_forms_sooner_where_the_shapes_lie_outside_the_guard(bench: Module
     rows = [bench.run_case("rule:frame-balanced+est", "harsh", 8, 4, 3_000_000, ("circle",),
                            replace(DEFAULT_WORLD, pattern_spacing_m=sp)) for sp in (0.4, 0.6)]
     assert rows[1]["formed"] == 1.0
-    assert rows[0]["steps_ratio"] > 2.0 * rows[1]["steps_ratio"] or rows[0]["formed"] < 0.5
+    assert rows[0]["steps_ratio"] > 1.25 * rows[1]["steps_ratio"] or rows[0]["formed"] < 0.5
 
 
 def test_spacing_widens_the_shapes_and_a_bad_one_is_a_one_line_error() -> None:

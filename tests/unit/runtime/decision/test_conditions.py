@@ -530,7 +530,7 @@ def test_a_differential_drive_on_noisy_wheels_parks_inside_the_tolerance(
         monkeypatch.setattr(local, "settle_for", orig if parks else (
             lambda c, e=False, world=DEFAULT_WORLD: dataclasses.replace(
                 orig(c, e, world), park_m=0.0, unpark_m=0.0)))
-        r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 8, 12, seed=5,
+        r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 8, 40, seed=5,
                            conditions=PRESETS["harsh"], estimator=True, hold_steps=20,
                            progress=False, world=wide)
         assert r.formed_rate == 1.0 and r.collisions == 0
