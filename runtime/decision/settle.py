@@ -258,6 +258,29 @@ On `launch --estimator --hold-steps 20` (the pymunk world, one process per robot
 8 robots under the realistic preset, seeds 1-5, 688 steps -> 636, and 10 robots at 10 cm
 noise, seeds 0-5, 1,217 steps with 1 pattern not held -> 981, all held; 0 collisions.
 
+**Each at its own pace.** Under noise every robot of a landing goes its own way to its slot
+over its own steps left (``Settle.own_pace``, :func:`landing_steps`: its way at v_max), where
+it took the team's, the farthest robot's. The team's steps left come from the peers' noisy
+positions: the largest of n noisy ways, rounded up to whole steps, overstates them, and every
+robot of the landing went slower for it (at n = 25 under 5 cm of noise, the steps left from
+the true positions took 1.191x -> 1.166x). Its own way a robot knows from its own pose. Every
+robot works out each peer's velocity by the same rule (:func:`pace_velocity`), for its filter
+and for the peers it carries along the plan; the filter's horizon and the landing's switch
+still read the team's steps left. The team's centroid now moves while robots that arrive
+first wait, and the averaged frame follows it late: at 10 cm of noise a few more teams do not
+hold. Measured (``benchmarks/conditions.py``, `rule:frame-balanced` + the tracker, 100
+episodes per case; 0 collisions):
+
+- n = 10: 5 cm 1.130x -> 1.099x, 10 cm 100 % at 1.277x -> 97 % at 1.193x (600 other
+  episodes: 99.3 % at 1.282x -> 96.5 % at 1.197x), the realistic preset 1.209x -> 1.193x.
+- n = 25: 5 cm 1.191x -> 1.138x, 10 cm 1.401x -> 1.274x, the realistic preset 1.317x ->
+  1.285x (200 other episodes: 1.349x -> 1.300x).
+- n = 50: 10 cm 100 % at 1.533x -> 97 % at 1.392x, the realistic preset 99 % at 1.441x ->
+  1.384x.
+- Tried: velocities less their mean, so that the team's centroid keeps still, held 49 % at
+  10 cm (a landed robot moved with the others' mean); the team's steps less one as a floor
+  for each robot's took about the same steps and held about as often.
+
 :func:`settle_for` sizes it from the noise the robot knows (none in the perfect world,
 which lands as before, to the last bit).
 """
