@@ -714,6 +714,46 @@ def test_under_noise_the_landing_lasts_six_steps_and_lands_the_team_sooner(
     assert six[0] == 1.0 and six[1] < two[1]
 
 
+def test_under_noise_each_robot_of_a_landing_goes_at_its_own_pace(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under noise a landing robot takes its own steps left, those of its own way at v_max,
+    not the team's (the farthest robot's, which noisy views overstate); every robot works out
+    each peer's velocity by the same rule. On exact late views the team keeps one pace. A team
+    of 12 at 5 cm of noise (heart, 8 episodes, ground truth) holds every episode in fewer
+    steps than at the team's pace, 0 collisions."""
+    import dataclasses
+
+    import runtime.decision.local as local
+    from runtime.brain.brain import load_brain
+    from runtime.decision.rules import plan_velocity
+    from runtime.decision.settle import landing_steps, pace_velocity, settle_for
+    from trainer.evaluate import evaluate_brain
+
+    cond = parse_conditions("noise_m=0.05")
+    noisy = settle_for(cond, estimator=True)
+    late = settle_for(parse_conditions("latency_steps=3"), estimator=True)
+    assert noisy is not None and noisy.own_pace and late is not None and not late.own_pace
+    pos = np.zeros((3, 2))
+    target = np.array([[0.05, 0.0], [0.0, 0.25], [-0.31, 0.0]])
+    np.testing.assert_array_equal(landing_steps(target, pos, 4.0, noisy), [1.0, 3.0, 4.0])
+    np.testing.assert_array_equal(landing_steps(target, pos, 4.0, late), [4.0, 4.0, 4.0])
+    np.testing.assert_allclose(pace_velocity(target, pos, np.array([1.0, 3.0, 4.0])),
+                               [[0.5, 0.0], [0.0, 0.25 / 0.3], [-0.31 / 0.4, 0.0]])
+    np.testing.assert_allclose(pace_velocity(target, pos, np.full(3, 4.0)),
+                               plan_velocity(target, pos, 4.0))
+
+    def run(own: bool) -> tuple[float, float]:
+        monkeypatch.setattr(local, "settle_for", lambda *a, **k: dataclasses.replace(
+            settle_for(*a, **k), own_pace=own))
+        r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 12, 8, seed=5,
+                           conditions=cond, estimator=True, hold_steps=20, progress=False)
+        assert r.collisions == 0
+        return r.success_rate, r.steps_ratio
+
+    own, team = run(True), run(False)
+    assert own[0] == 1.0 and own[1] < team[1]
+
+
 @pytest.mark.parametrize("spec", ["noise_m=0.1", "realistic"])
 def test_a_team_holds_at_10_cm_of_noise_and_in_the_realistic_preset(spec: str) -> None:
     """Where the team's frame jittered by more than the tolerance (held 0 %): the still peers'
