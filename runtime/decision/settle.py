@@ -272,7 +272,8 @@ hold. Measured (``benchmarks/conditions.py``, `rule:frame-balanced` + the tracke
 episodes per case; 0 collisions):
 
 - n = 10: 5 cm 1.130x -> 1.099x, 10 cm 100 % at 1.277x -> 97 % at 1.193x (600 other
-  episodes: 99.3 % at 1.282x -> 96.5 % at 1.197x), the realistic preset 1.209x -> 1.193x.
+  episodes: 99.3 % at 1.282x -> 96.5 % at 1.197x), the realistic preset 1.209x -> 1.193x,
+  ``harsh`` 59 % at 2.84x -> 66 % at 2.85x.
 - n = 25: 5 cm 1.191x -> 1.138x, 10 cm 1.401x -> 1.274x, the realistic preset 1.317x ->
   1.285x (200 other episodes: 1.349x -> 1.300x).
 - n = 50: 10 cm 100 % at 1.533x -> 97 % at 1.392x, the realistic preset 99 % at 1.441x ->
