@@ -682,17 +682,34 @@ def test_the_averaged_landing_centroid_holds_a_team_at_10_cm_of_noise(
     assert averaged >= 17 and averaged > held(1.0)
 
 
+def _heart_landing(monkeypatch: pytest.MonkeyPatch, n: int, cond: Conditions,
+                   **landing: object) -> tuple[float, float]:
+    """`rule:frame-balanced` + the tracker on the heart (n robots, 8 episodes, seed 5, 20-step
+    hold) under ``cond``, every robot's landing with ``landing`` changed (none: as
+    :func:`settle_for` sizes it): success and steps over the lower bound, 0 collisions."""
+    import dataclasses
+
+    import runtime.decision.local as local
+    from runtime.brain.brain import load_brain
+    from runtime.decision.settle import settle_for
+    from trainer.evaluate import evaluate_brain
+
+    if landing:
+        monkeypatch.setattr(local, "settle_for", lambda *a, **k: dataclasses.replace(
+            settle_for(*a, **k), **landing))
+    r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", n, 8, seed=5,
+                       conditions=cond, estimator=True, hold_steps=20, progress=False)
+    assert r.collisions == 0
+    return r.success_rate, r.steps_ratio
+
+
 def test_under_noise_the_landing_lasts_six_steps_and_lands_the_team_sooner(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Under noise a plan lands in the centroid frame, every robot landed, for its last six
     steps: at 10 cm of noise (n = 10, heart, 8 episodes, ground truth) the team forms and
     holds every episode in fewer steps than with the two steps of before, 0 collisions."""
-    import dataclasses
 
-    import runtime.decision.local as local
-    from runtime.brain.brain import load_brain
     from runtime.decision.settle import NOISY_LANDING_STEPS, settle_for
-    from trainer.evaluate import evaluate_brain
 
     cond = parse_conditions("noise_m=0.1")
     landing = settle_for(cond, estimator=True)
@@ -701,16 +718,8 @@ def test_under_noise_the_landing_lasts_six_steps_and_lands_the_team_sooner(
     late = settle_for(parse_conditions("latency_steps=3"), estimator=True)
     assert late is not None and late.centroid_steps == 2.0  # exact late views: as before
 
-    def run(steps: float | None) -> tuple[float, float]:
-        if steps is not None:
-            monkeypatch.setattr(local, "settle_for", lambda *a, **k: dataclasses.replace(
-                settle_for(*a, **k), centroid_steps=steps))
-        r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 10, 8, seed=5,
-                           conditions=cond, estimator=True, hold_steps=20, progress=False)
-        assert r.collisions == 0
-        return r.success_rate, r.steps_ratio
-
-    six, two = run(None), run(2.0)
+    six = _heart_landing(monkeypatch, 10, cond)
+    two = _heart_landing(monkeypatch, 10, cond, centroid_steps=2.0)
     assert six[0] == 1.0 and six[1] < two[1]
 
 
@@ -721,13 +730,9 @@ def test_under_noise_each_robot_of_a_landing_goes_at_its_own_pace(
     each peer's velocity by the same rule. On exact late views the team keeps one pace. A team
     of 12 at 5 cm of noise (heart, 8 episodes, ground truth) holds every episode in fewer
     steps than at the team's pace, 0 collisions."""
-    import dataclasses
 
-    import runtime.decision.local as local
-    from runtime.brain.brain import load_brain
     from runtime.decision.rules import plan_velocity
     from runtime.decision.settle import landing_steps, pace_velocity, settle_for
-    from trainer.evaluate import evaluate_brain
 
     cond = parse_conditions("noise_m=0.05")
     noisy = settle_for(cond, estimator=True)
@@ -742,15 +747,8 @@ def test_under_noise_each_robot_of_a_landing_goes_at_its_own_pace(
     np.testing.assert_allclose(pace_velocity(target, pos, np.full(3, 4.0)),
                                plan_velocity(target, pos, 4.0))
 
-    def run(own: bool) -> tuple[float, float]:
-        monkeypatch.setattr(local, "settle_for", lambda *a, **k: dataclasses.replace(
-            settle_for(*a, **k), own_pace=own))
-        r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 12, 8, seed=5,
-                           conditions=cond, estimator=True, hold_steps=20, progress=False)
-        assert r.collisions == 0
-        return r.success_rate, r.steps_ratio
-
-    own, team = run(True), run(False)
+    own = _heart_landing(monkeypatch, 12, cond, own_pace=True)
+    team = _heart_landing(monkeypatch, 12, cond, own_pace=False)
     assert own[0] == 1.0 and own[1] < team[1]
 
 
