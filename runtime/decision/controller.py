@@ -30,14 +30,13 @@ from runtime.core.orca import CHANGE_TOL_MPS
 from runtime.decision.kinematics import diff_drive_step
 from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
-from runtime.decision.rules import PlanFrame, plan_targets, plan_velocity
+from runtime.decision.rules import PlanFrame, pace_velocity, plan_targets
 from runtime.decision.safety import OrcaParams, landing, make_filter
 from runtime.decision.settle import (
     Lander,
     Settle,
     centroid_targets,
     landing_steps,
-    pace_velocity,
     seen_team,
     shared_slots,
 )
@@ -112,8 +111,7 @@ class Controller:
         if plan is None or not isinstance(plan, tuple):
             return plan
         target, pos, k = plan
-        return pace_velocity(target, pos, k, self.world) if k.ndim else plan_velocity(
-            target, pos, k, self.world)
+        return pace_velocity(target, pos, k, self.world)
 
     # ---------------------------------------------------------------- state
 

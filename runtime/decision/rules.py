@@ -61,8 +61,10 @@ __all__ = [
     "FrameRule",
     "PlanFrame",
     "frame_plan",
+    "pace_velocity",
     "plan_step",
     "plan_targets",
+    "plan_velocity",
     "straight_to_slot",
 ]
 
@@ -147,9 +149,17 @@ def plan_velocity(target: Array, pos: Array, steps_left: Array | float,
                   world: WorldConfig = DEFAULT_WORLD) -> Array:
     """The plan's velocities (..., n, 2) m/s: each robot's way to its ``target`` over the
     ``steps_left`` K of its team (...,), so that all land at the same step."""
-    k = np.asarray(steps_left, dtype=np.float64)[..., None, None]
+    return pace_velocity(target, pos, np.asarray(steps_left, dtype=np.float64)[..., None],
+                         world)
+
+
+def pace_velocity(target: Array, pos: Array, steps: Array | float,
+                  world: WorldConfig = DEFAULT_WORLD) -> Array:
+    """Velocities (..., n, 2) m/s: each robot's way to its ``target`` over its own ``steps``
+    left (..., n), or a number for all (a landing at each robot's own pace,
+    :func:`runtime.decision.settle.landing_steps`)."""
     out: Array = (np.asarray(target, dtype=np.float64) - np.asarray(pos, dtype=np.float64)) \
-        / (k * world.dt_s)
+        / (np.asarray(steps, dtype=np.float64)[..., None] * world.dt_s)
     return out
 
 

@@ -264,7 +264,8 @@ it took the team's, the farthest robot's. The team's steps left come from the pe
 positions: the largest of n noisy ways, rounded up to whole steps, overstates them, and every
 robot of the landing went slower for it (at n = 25 under 5 cm of noise, the steps left from
 the true positions took 1.191x -> 1.166x). Its own way a robot knows from its own pose. Every
-robot works out each peer's velocity by the same rule (:func:`pace_velocity`), for its filter
+robot works out each peer's velocity by the same rule
+(:func:`runtime.decision.rules.pace_velocity`), for its filter
 and for the peers it carries along the plan; the filter's horizon and the landing's switch
 still read the team's steps left. The team's centroid now moves while robots that arrive
 first wait, and the averaged frame follows it late: at 10 cm of noise a few more teams do not
@@ -305,8 +306,8 @@ from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["CENTROID_FRAME", "CORE_M", "Lander", "Settle", "centroid_targets", "core_frame",
-           "damp_landing", "landing_gain", "landing_steps", "pace_velocity", "seen_centroid",
-           "seen_team", "settle_for", "shared_slots", "smooth_centroid"]
+           "damp_landing", "landing_gain", "landing_steps", "seen_centroid", "seen_team",
+           "settle_for", "shared_slots", "smooth_centroid"]
 
 
 @dataclass(frozen=True)
@@ -628,15 +629,6 @@ def landing_steps(target: Array, pos: Array, team_steps: Any, settle: Settle,
                                 world.v_max_mps * world.dt_s)
         return own
     return np.broadcast_to(np.asarray(team_steps, dtype=np.float64)[..., None], d.shape[:-1])
-
-
-def pace_velocity(target: Array, pos: Array, steps: Array,
-                  world: WorldConfig = DEFAULT_WORLD) -> Array:
-    """Velocities (..., n, 2) m/s: each robot's way to its ``target`` over its own ``steps``
-    (..., n) (:func:`runtime.decision.rules.plan_velocity` with one K per robot)."""
-    out: Array = (np.asarray(target, dtype=np.float64) - np.asarray(pos, dtype=np.float64)) \
-        / (np.asarray(steps, dtype=np.float64)[..., None] * world.dt_s)
-    return out
 
 
 def landing_gain(far_m: Any, settle: Settle) -> Any:

@@ -37,13 +37,12 @@ from runtime.conditions import Conditions
 from runtime.core.assignment import assign_teams
 from runtime.decision.local import Perception
 from runtime.decision.observation import ObservationSpec, general_observation
-from runtime.decision.rules import plan_targets
+from runtime.decision.rules import pace_velocity, plan_targets
 from runtime.decision.settle import (
     CORE_M,
     centroid_targets,
     core_frame,
     landing_steps,
-    pace_velocity,
     seen_centroid,
     seen_team,
     settle_for,

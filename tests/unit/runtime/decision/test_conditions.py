@@ -731,8 +731,8 @@ def test_under_noise_each_robot_of_a_landing_goes_at_its_own_pace(
     of 12 at 5 cm of noise (heart, 8 episodes, ground truth) holds every episode in fewer
     steps than at the team's pace, 0 collisions."""
 
-    from runtime.decision.rules import plan_velocity
-    from runtime.decision.settle import landing_steps, pace_velocity, settle_for
+    from runtime.decision.rules import pace_velocity, plan_velocity
+    from runtime.decision.settle import landing_steps, settle_for
 
     cond = parse_conditions("noise_m=0.05")
     noisy = settle_for(cond, estimator=True)
