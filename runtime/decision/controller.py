@@ -104,7 +104,8 @@ class Controller:
     @property
     def team_velocity(self) -> Array | None:
         """(n, 2) m/s: every robot's velocity under the synchronised plan this robot computed
-        in its last decision (None: its brain has no plan); a robot that cannot see every
+        in its last decision, in a landing at its own pace each robot over its own steps left
+        (None: its brain has no plan); a robot that cannot see every
         peer carries the unseen ones along it (:class:`runtime.decision.estimator.PeerTracker`).
         Worked out when asked: a decision only keeps what it is made from."""
         plan = self._team_plan
