@@ -356,7 +356,13 @@ class OrcaFilter:
         if guard_ref.shape[0] != pos.shape[0] or guard_ref.shape[1] != pos.shape[1] \
                 or guard_ref.shape[2] != GUARD_REF_COLUMNS:
             raise ValueError("ORCA: the guard's references do not fit the positions")
+        self._bound_rows(pos.shape[1])
         return self._safe(e, i, 0, 0, pos, vel, pref_x, pref_y, horizon_s, guard_ref)
+
+    def _bound_rows(self, n: cython.Py_ssize_t) -> None:
+        """Room in ``_bound`` for the guard's bounds of every peer of a team of ``n``."""
+        if self._bound.shape[0] < 3 * n:
+            self._bound = np.zeros((3 * n, 4))
 
     @cython.cfunc
     def _safe(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t, a: cython.Py_ssize_t,
@@ -514,9 +520,13 @@ class OrcaFilter:
                 b: cython.Py_ssize_t, m: cython.Py_ssize_t,
                 pos: cython.const[cython.double][:, :, ::1],
                 ref: cython.const[cython.double][:, :, ::1]) -> cython.Py_ssize_t:
-        """The guard's bounds for the ``m`` neighbours at [a, b] into ``_bound`` (rows
-        [wx, wy, cap, cap or 0]: the velocity's component along w at most cap, m/s, below
-        zero for a retreat, and the same with a retreat taken as zero); how many."""
+        """The guard's bounds into ``_bound`` (rows [wx, wy, cap, cap or 0]: the velocity's
+        component along w at most cap, m/s, below zero for a retreat, and the same with a
+        retreat taken as zero); how many. With references (``ref``), for every peer of team
+        e whose bound can bind (a cap under v_max), whatever ``pos`` says of it: the
+        references are the views as sensed, and a peer that an estimate misplaces is as near
+        as its view says (see :meth:`robot`); without them, for the ``m`` neighbours at
+        [a, b] (``pos`` is then the pair as it is)."""
         inv_dt: cython.double = 1.0 / self.dt
         g: cython.double = self.guard
         out = self._bound
@@ -535,8 +545,14 @@ class OrcaFilter:
         room: cython.double
         has_ref: cython.bint = ref.shape[0] > 0
         share: cython.double
-        for c in range(m):
-            j = self._ids[a, b, c]
+        peers: cython.Py_ssize_t = pos.shape[1] if has_ref else m
+        for c in range(peers):
+            if has_ref:  # every peer, as sensed: not the estimates' nearest
+                j = c
+                if j == i:
+                    continue
+            else:
+                j = self._ids[a, b, c]
             unseen = 0.0
             share = 0.5
             if has_ref:  # the pair as last seen, and where this robot stood then
@@ -576,6 +592,8 @@ class OrcaFilter:
                 cap = 0.0
             if cap > 0.0:
                 cap = cap / (1.0 + self.guard_gain)  # what the wheels may add to the command
+                if has_ref and cap >= self.v_max:
+                    continue  # room for a full step along every edge: it cannot bind
             elif self.guard_gain < 1.0:
                 cap = cap / (1.0 - self.guard_gain)  # or take from a retreat
             # the peer may lie off the seen direction by the error the guard allows for
@@ -668,6 +686,8 @@ class OrcaFilter:
         if ref.shape[0] > 0 and (ref.shape[0] != pos.shape[0] or ref.shape[1] != pos.shape[1]
                                  or ref.shape[2] != GUARD_REF_COLUMNS):
             raise ValueError("ORCA: the guard's references do not fit the positions")
+        if ref.shape[0] > 0:
+            self._bound_rows(pos.shape[1])
         k: cython.Py_ssize_t = self._bounds(e, i, 0, 0, self._count[0, 0], pos, ref)
         return self._scale(k, drive_x, drive_y, any_heading)
 

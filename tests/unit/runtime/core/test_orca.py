@@ -472,6 +472,33 @@ def test_the_guard_counts_the_room_from_the_pair_as_last_seen() -> None:
     assert math.hypot(vx, vy) <= V_MAX
 
 
+def test_the_guard_holds_a_peer_that_the_estimates_misplace() -> None:
+    """The guard reads the views as sensed, not the estimates ORCA plans from: a peer seen
+    0.4 m ahead that the estimates put 5 m away, behind ten nearer peers (out of ORCA's
+    nearest ten and its 2 m), still caps the approach to half the room, (0.4 - G) / 2 per
+    step. With the estimates right ORCA is stricter still. A peer seen far adds no bound."""
+    n = 12
+    f = OrcaFilter(10, 2.0, R, DT, 0.0, V_MAX, R, G)
+    pos = np.zeros((1, n, 2))
+    pos[0, 1] = [5.0, 0.0]  # robot 1 as estimated
+    pos[0, 2:, 0] = -1.0  # ten peers 1 m behind, along a line
+    pos[0, 2:, 1] = np.linspace(-1.5, 1.5, n - 2)
+    vel = np.zeros((1, n, 2))
+    ref = np.zeros((1, n, 6))
+    ref[0, :, 0:2] = pos[0]
+    ref[0, 1, 0:2] = [0.4, 0.0]  # robot 1 as last sensed
+    ref[0, :, 5] = 0.5
+    vx, vy, _, _ = f.robot(0, 0, pos, vel, 1.0, 0.0, 0.75, ref)
+    assert vx == pytest.approx((0.4 - G) / 2 / DT) and vy == pytest.approx(0.0, abs=1e-9)
+    assert f.guard_scale(0, 0, pos, 1.0, 0.0, False, ref) == pytest.approx((0.4 - G) / 2 / DT)
+    ref[0, 1, 0:2] = [5.0, 0.0]  # seen far: nothing binds
+    vx, vy, _, _ = f.robot(0, 0, pos, vel, 1.0, 0.0, 0.75, ref)
+    assert (vx, vy) == pytest.approx((1.0, 0.0))
+    pos[0, 1] = ref[0, 1, 0:2] = [0.4, 0.0]  # estimated and seen near: ORCA, stricter
+    vx, _, _, _ = f.robot(0, 0, pos, vel, 1.0, 0.0, 0.75, ref)
+    assert 0.0 <= vx <= (0.4 - G) / 2 / DT
+
+
 @pytest.mark.parametrize(("share", "left_m"), [(0.6, 0.09), (0.3, -0.03), (0.5, 0.05),
                                                (np.nan, 0.05), (-2.0, -0.15), (0.45, 0.03)])
 def test_the_guard_gives_the_robot_its_share_of_the_room(share: float, left_m: float) -> None:
