@@ -317,8 +317,11 @@ class OrcaFilter:
         (s). The result has norm <= v_max; ``changed`` says it differs from the clamped
         preferred velocity by more than :data:`CHANGE_TOL_MPS`, ``change_mps`` by how much.
 
-        The last-resort guard (``guard_m`` > 0) then bounds, for each neighbour considered,
-        the robot's approach to it. ORCA's guarantee rests on both robots predicting each
+        The last-resort guard (``guard_m`` > 0) then bounds the robot's approach to each
+        peer: with ``guard_ref``, every peer of the team whose bound can bind, as sensed,
+        whatever ``pos`` (the estimates ORCA plans from) says of it (an estimate that
+        misplaces a near peer, out of ORCA's nearest or its range, left it unguarded);
+        without, ORCA's neighbours. ORCA's guarantee rests on both robots predicting each
         other's velocity alike, which noisy and late views break; the guard needs only
         distances. From the pair as this robot last saw it (``guard_ref`` (E, n, 6): the
         peer's sensed position, this robot's own pose at that step, the way the peer may
