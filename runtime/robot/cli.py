@@ -98,7 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--lockstep-deadline-s",
         type=float,
         default=0.02,
-        help="decide step t this long after its first pose even if poses are missing",
+        help="decide step t this long after its first pose even if poses are missing "
+        "(below --watchdog-s)",
     )
     parser.add_argument(
         "--watchdog-s", type=float, default=1.0, help="hold still after this long without poses"
@@ -234,6 +235,9 @@ def config_from_args(
     ):
         if not (math.isfinite(v) and v >= 0):
             raise InputError(f"{name} must be >= 0, got {v}")
+    if args.lockstep_deadline_s >= args.watchdog_s:  # else a lost pose holds it for good
+        raise InputError(f"--lockstep-deadline-s must be below --watchdog-s "
+                         f"({args.watchdog_s:g}), got {args.lockstep_deadline_s:g}")
     if args.view_every < 0:
         raise InputError(f"--view-every must be >= 0 (0: no views), got {args.view_every}")
     if args.orca_max_neighbours < 1:

@@ -78,6 +78,7 @@ from runtime.net.session import (
     open_config,
     world_port,
 )
+from runtime.robot.cli import RobotConfig
 from sim_bridge.launch.launch_keys import RunKeys, run_keys
 from sim_bridge.launch.lifeline import Lifeline
 from sim_bridge.launch.router import RouterProcess
@@ -189,7 +190,10 @@ class Robots:
             else:  # a robot waits for every pose of a step about as long as the world waits
                 # for its command: on a busy machine it still decides on complete steps,
                 # so a lockstep run stays reproducible
-                cmd += ["--lockstep-deadline-s", f"{0.8 * args.step_deadline_ms / 1000.0:g}"]
+                wait_s = 0.8 * args.step_deadline_ms / 1000.0
+                cmd += ["--lockstep-deadline-s", f"{wait_s:g}"]
+                if wait_s >= RobotConfig.watchdog_s:  # the watchdog must outwait the deadline
+                    cmd += ["--watchdog-s", f"{2.0 * wait_s:g}"]
             # Not the launcher's process group: a Ctrl-C reaches the launcher only, which
             # then stops each robot by PID after finishing the log.
             group_kw: dict[str, Any] = ({"start_new_session": True} if group is None

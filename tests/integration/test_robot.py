@@ -48,8 +48,13 @@ from runtime.world_config import DEFAULT_WORLD
 W = DEFAULT_WORLD
 
 
+TEAM_DEADLINE = ("--lockstep-deadline-s", "0.5")
+"""The tests' worlds send every pose of a step: on a busy machine the default deadline
+(20 ms) can pass before a robot's callbacks ran, and it decides for a part of its team."""
+
+
 def start_team(world: StubWorld, robots: list[RobotProc], n: int, brain: str, *extra: str) -> None:
-    robots.extend(RobotProc(world, i, brain, *extra) for i in range(n))
+    robots.extend(RobotProc(world, i, brain, *TEAM_DEADLINE, *extra) for i in range(n))
     world.wait_alive(set(range(n)), timeout=30.0)
     for i in range(n):  # a status proves the robot's link to this world is up
         world.wait_status(i, lambda s: True, 10.0, f"first status of robot {i}")

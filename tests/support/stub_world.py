@@ -44,6 +44,11 @@ from runtime.world_config import DEFAULT_WORLD
 from support import ROOT, free_port
 from support.net import wait_notified
 
+BLOCK = zenoh.CongestionControl.BLOCK
+"""Every put waits for room in the session's queue. Zenoh's default drops a message that
+finds the queue full, and one session putting a pose per robot in a burst (express: one
+batch each) lost some on a busy machine, which a robot decided on a part of its team."""
+
 
 class StubWorld:
     """The world's side of the protocol, driven step by step from a test."""
@@ -117,7 +122,8 @@ class StubWorld:
         pts = make_pattern(name, n)
         self.pattern_version += 1
         msg = PatternMsg(self.pattern_version, name, pts, DEFAULT_WORLD.formed_tol_m)
-        self.session.put(keys.pattern_key(self.swarm), encode_pattern(msg))
+        self.session.put(keys.pattern_key(self.swarm), encode_pattern(msg),
+                         congestion_control=BLOCK)
         return pts
 
     def publish_poses(self, step: int, pos: np.ndarray, ids: list[int] | None = None) -> None:
@@ -128,18 +134,22 @@ class StubWorld:
         if self.batches:
             xy = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
             batch = PoseBatch(step, t, np.array(ids, np.uint32), xy, np.zeros_like(xy))
-            self.session.put(keys.poses_key(self.swarm), encode_poses(batch))
+            self.session.put(keys.poses_key(self.swarm), encode_poses(batch),
+                             congestion_control=BLOCK)
             return
         for rid, (x, y) in zip(ids, pos.tolist(), strict=True):
             pub = self._pubs.get(rid)
             if pub is None:
                 pub = self._pubs[rid] = self._decls.enter_context(
-                    self.session.declare_publisher(keys.pose_key(self.swarm, rid), express=True)
+                    self.session.declare_publisher(
+                        keys.pose_key(self.swarm, rid), express=True,
+                        congestion_control=BLOCK,
+                    )
                 )
             pub.put(encode_pose(Pose(rid, step, t, x, y, 0.0, 0.0, len(ids))))
 
     def put_raw(self, key: str, payload: bytes) -> None:
-        self.session.put(key, payload)
+        self.session.put(key, payload, congestion_control=BLOCK)
 
     # -- waiting
     def wait(self, pred: Callable[[], Any], timeout: float, what: str) -> Any:

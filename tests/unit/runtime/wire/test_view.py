@@ -167,3 +167,14 @@ def test_view_every_option() -> None:
     p = argparse.ArgumentParser()
     add_arguments(p)
     assert "--view-every" in p.format_help()
+
+
+def test_lockstep_deadline_must_be_below_the_watchdog() -> None:
+    """A deadline past the watchdog never comes: a robot missing a pose of the step holds
+    still first, and holding, no deadline wakes it, while a lockstep world waits for it."""
+    cfg, _ = config_from_args(_robot_args("--lockstep-deadline-s", "0.5"), DEFAULT_WORLD)
+    assert cfg.lockstep_deadline_s == 0.5
+    for extra in (("--lockstep-deadline-s", "1"),
+                  ("--lockstep-deadline-s", "0.5", "--watchdog-s", "0.4")):
+        with pytest.raises(InputError, match="--lockstep-deadline-s must be below --watchdog-s"):
+            config_from_args(_robot_args(*extra), DEFAULT_WORLD)
