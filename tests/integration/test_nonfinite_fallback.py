@@ -10,7 +10,7 @@ import onnx
 from onnx import helper, numpy_helper
 from support import ROOT
 from support.brains import write_brain
-from support.stub_world import RobotProc, StubWorld
+from support.stub_world import TEAM_DEADLINE, RobotProc, StubWorld
 
 from runtime.brain.brain import load_brain, probe_observations
 from runtime.decision.formation import collision_pairs, formation_error
@@ -60,7 +60,8 @@ def test_a_brain_nan_at_run_time_is_replaced_by_the_rule_and_counted(tmp_path: P
     brain = nan_near_the_slot(tmp_path)
     n = 4
     world = StubWorld("tnonfinite")
-    robots = [RobotProc(world, i, str(brain)) for i in range(n)]  # --nonfinite-fallback rule
+    robots = [RobotProc(world, i, str(brain), *TEAM_DEADLINE)  # --nonfinite-fallback rule
+              for i in range(n)]
     try:
         world.wait_alive(set(range(n)), timeout=30.0)
         for i in range(n):

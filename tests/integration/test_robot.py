@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from support import ROOT, wait_for
 from support.brains import write_test_brain
-from support.stub_world import RobotProc, StubWorld
+from support.stub_world import TEAM_DEADLINE, RobotProc, StubWorld
 
 from runtime.brain.brain import RULE_ASSIGN, RuleBrain
 from runtime.brain.signing import generate_key
@@ -46,11 +46,6 @@ from runtime.wire.messages import (
 from runtime.world_config import DEFAULT_WORLD
 
 W = DEFAULT_WORLD
-
-
-TEAM_DEADLINE = ("--lockstep-deadline-s", "0.5")
-"""The tests' worlds send every pose of a step: on a busy machine the default deadline
-(20 ms) can pass before a robot's callbacks ran, and it decides for a part of its team."""
 
 
 def start_team(world: StubWorld, robots: list[RobotProc], n: int, brain: str, *extra: str) -> None:

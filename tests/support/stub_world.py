@@ -50,6 +50,12 @@ finds the queue full, and one session putting a pose per robot in a burst (expre
 batch each) lost some on a busy machine, which a robot decided on a part of its team."""
 
 
+TEAM_DEADLINE = ("--lockstep-deadline-s", "0.5")
+"""For robots a test steps in lockstep: the stub world sends every pose of a step, and on a
+busy machine the default deadline (20 ms) could pass before a robot's callbacks ran, which
+then decided for a part of its team. Below the robots' watchdog (1 s), as it must be."""
+
+
 class StubWorld:
     """The world's side of the protocol, driven step by step from a test."""
 
