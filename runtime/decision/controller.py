@@ -244,7 +244,7 @@ class Controller:
         :mod:`runtime.decision.settle`); the filter and ``V`` otherwise."""
         lander = self._lander
         if (lander is None or steps_left is None
-                or not bool(lander.settle.lands_in_centroid(steps_left))):
+                or not lander.settle.filters_on_plan(steps_left)):
             return self._filter, V
         way = self._to_slot
         flt = (self._landed_filter if self._landed_filter is not None and way is not None

@@ -318,7 +318,12 @@ class Settle:
     gain: float = 0.5
     centroid_steps: float = 2.0
     """A synchronised plan with this many steps left or fewer lands in the team's centroid
-    frame (see the module docstring, "Landing frame")."""
+    frame (see the module docstring, "Landing frame"; under noise from the start, "The
+    centroid frame from the start")."""
+    filter_steps: float = 2.0
+    """With this many steps left or fewer (and in the centroid frame) the safety filter
+    reads the peers' velocities from the team's plan, and a landed robot keeps
+    ``guard_share`` of the guard's margin (see "The filter reads the plan in the landing")."""
     centroid_gain: float = 0.03
     """The landing frame's centroid is the team's, as the robot sees it raw
     (:func:`seen_centroid`), averaged over the landing's steps: their running mean, each new
@@ -368,6 +373,11 @@ class Settle:
         frame (travel weight :data:`CENTROID_FRAME`) rather than its own."""
         return np.asarray(steps_left) <= self.centroid_steps
 
+    def filters_on_plan(self, steps_left: float) -> bool:
+        """Whether a plan with ``steps_left`` in the centroid frame has the safety filter
+        read the team's plan, and a landed robot's guard (``filter_steps``)."""
+        return bool(steps_left <= self.filter_steps) and bool(self.lands_in_centroid(steps_left))
+
     def centroid_weight(self, k: Any) -> Any:
         """The weight of the centroid seen raw on the landing's step ``k`` >= 1 in the average
         (step 0 starts it from the tracker's): ``max(centroid_gain, 1 / (k + centroid_prior))``,
@@ -401,7 +411,7 @@ def settle_for(conditions: Conditions, estimator: bool = False,
     sigma = steady_sigma(conditions.noise_m) if estimator else conditions.noise_m
     parks = conditions.kinematics == "diff" and conditions.act_noise_mps > 0.0
     return Settle(radius_m=min(SETTLE_SIGMAS * sigma, 0.5 * world.max_step_m),
-                  gain=SETTLE_GAIN, centroid_steps=NOISY_LANDING_STEPS,
+                  gain=SETTLE_GAIN, centroid_steps=math.inf, filter_steps=NOISY_LANDING_STEPS,
                   sigma_m=conditions.noise_m, own_pace=True,
                   park_m=PARK_SHARE * world.formed_tol_m if parks else 0.0,
                   unpark_m=world.formed_tol_m if parks else 0.0)
@@ -413,9 +423,10 @@ outlasts the plan's kept frame is held off its slot and left out of the team's c
 (:func:`core_frame`)."""
 
 NOISY_LANDING_STEPS = 6.0
-"""Under noise a synchronised plan with this many steps left or fewer lands in the centroid
-frame, averaged, every robot of it landed (``Settle.centroid_steps``; see "The landing's six
-steps")."""
+"""Under noise a synchronised plan with this many steps left or fewer has its safety filter
+read the team's plan, every robot of it landed (``Settle.filter_steps``; see "The landing's
+six steps"); it goes in the centroid frame, averaged, from the start (see "The centroid
+frame from the start")."""
 
 LANDS_AS_PLANNED_LATE = 1
 """Exact views at most this many steps late land as planned, not in the centroid frame (see
