@@ -20,11 +20,12 @@ pattern in a frame that blends the centre of the smallest circle enclosing the t
 displacements with their centroid. The enclosing circle rests on two or three robots, so
 its centre carries their noise whole, where the centroid averages every robot's: a landed
 team chasing it does not hold. With ``centroid_steps`` (2; under noise 6 since "The
-landing's six steps") steps or fewer left, a robot under noise lands in the centroid frame
-(travel weight 1). Measured (n = 10, 4 episodes of
-each of ``benchmarks/conditions.py``'s shapes, `rule:frame-balanced` + the tracker): the
-realistic preset held 65 % -> 95 % of episodes, 10 cm noise 0 % -> 35 %, at the same steps
-(1.50x -> 1.52x the lower bound); switching at 3 or 5 steps left did no better.
+landing's six steps", and every step since "The centroid frame from the start") steps or
+fewer left, a robot under noise lands in the centroid frame (travel weight 1). Measured
+(n = 10, 4 episodes of each of ``benchmarks/conditions.py``'s shapes, `rule:frame-balanced`
++ the tracker): the realistic preset held 65 % -> 95 % of episodes, 10 cm noise 0 % -> 35 %,
+at the same steps (1.50x -> 1.52x the lower bound); switching at 3 or 5 steps left did no
+better.
 Without noise and without latency a plan lands as planned, to the last bit.
 
 **The centroid, averaged.** The centroid a robot sees carries the tracker's error on each
