@@ -111,7 +111,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--exit-after-silence-s",
         type=float,
         default=0.0,
-        help="exit (code 0) once the world has been silent this long (0: never)",
+        help="exit (code 0) once the world has been silent this long (0: never); keep it above "
+        "the world's wait for a team's first steps (5 s by default), or robots leave while "
+        "the world waits for a slow one",
     )
     parser.add_argument(
         "--world-timeout-s",

@@ -90,7 +90,7 @@ def test_an_outsider_peer_cannot_steer_the_swarm(procs: Any, tmp_path: Path, kit
     token = None
     robots = []
     try:
-        robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2", "--mode", "realtime")
+        robots = [procs.robot(swarm, port, i, "--mode", "realtime")
                   for i in range(N)]
         kit.wait_for(lambda: watcher.step() >= 1 and versions, 60, "the swarm to start")
         v = max(versions)

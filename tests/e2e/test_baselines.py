@@ -45,8 +45,7 @@ def test_rule_baseline_forms_in_the_world(
     log = tmp_path / f"{safety}.mcap"
     world = procs.world(swarm, port, "--robots", str(ROBOTS), "--patterns", "circle",
                         "--seed", "11", "--record", str(log), "--json", "--wait-robots-s", "60")
-    robots = [procs.robot(swarm, port, i, "--safety", safety, *extra,
-                          "--exit-after-silence-s", "2") for i in range(ROBOTS)]
+    robots = [procs.robot(swarm, port, i, "--safety", safety, *extra) for i in range(ROBOTS)]
     assert world.wait(timeout=60) == 0, procs.log("world")
     for r in robots:
         assert r.wait(timeout=30) == 0

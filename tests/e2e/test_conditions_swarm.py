@@ -33,7 +33,7 @@ def test_a_noisy_late_lossy_swarm_forms_without_collision(
     world = procs.world(swarm, port, "--robots", "6", "--patterns", "circle", "--seed", "4",
                         "--record", str(log), "--json", "--wait-robots-s", "60",
                         "--conditions", COND)
-    robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2", "--conditions", COND,
+    robots = [procs.robot(swarm, port, i, "--conditions", COND,
                           "--sensing-seed", "4", "--estimator", "--brain", "rule:frame-balanced")
               for i in range(6)]
     assert world.wait(timeout=150) == 0, procs.log("world")
@@ -104,7 +104,7 @@ def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
     world = procs.world(swarm, port, "--robots", str(n), "--patterns", "line", "--seed", "5",
                         "--record", str(log), "--json", "--wait-robots-s", "60",
                         "--conditions", COND)
-    robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2", "--conditions", COND,
+    robots = [procs.robot(swarm, port, i, "--conditions", COND,
                           "--sensing-seed", "5", "--estimator", "--brain", "rule:frame-balanced",
                           "--view-every", str(every))
               for i in range(n)]

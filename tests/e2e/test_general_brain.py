@@ -60,7 +60,7 @@ def test_general_brain_forms_an_unseen_shape_over_zenoh(procs: Any, tmp_path: Pa
                         "--seed", "11", "--record", str(log), "--wait-robots-s", "60", "--json")
     for i in range(ROBOTS):  # started together: each one's start-up overlaps the others'
         procs.start(f"robot{i}", "robot", "--swarm", swarm, "--id", str(i), "--zenoh-port",
-                    str(port), "--brain", str(brain_path), "--exit-after-silence-s", "2")
+                    str(port), "--brain", str(brain_path))
     assert world.wait(timeout=100) == 0, procs.log("world")[-3000:]
     result = json.loads(procs.log("world").strip().splitlines()[-1])
     assert result["all_formed"], result

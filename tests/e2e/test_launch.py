@@ -52,7 +52,7 @@ def test_world_and_robots_form_two_patterns_in_lockstep(
     swarm, port, log = swarm_name("two"), kit.free_port(), tmp_path / "two.mcap"
     world = procs.world(swarm, port, "--robots", "5", "--patterns", "circle,line", "--seed", "3",
                         "--record", str(log), "--json", "--wait-robots-s", "60")
-    robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2") for i in range(5)]
+    robots = [procs.robot(swarm, port, i) for i in range(5)]
     assert world.wait(timeout=90) == 0, procs.log("world")
     for r in robots:  # the robots notice the world is gone and leave on their own
         assert r.wait(timeout=30) == 0
@@ -82,7 +82,7 @@ def test_robot_killed_mid_run_others_reform(procs: Any, tmp_path: Path, kit: Any
                         "--record", str(log), "--wait-robots-s", "60")
     watcher = kit.Watcher(swarm, port)  # on the swarm before the first step
     kit.wait_for(lambda: "world" in watcher.alive, 30, "the watcher to see the world")
-    robots = [procs.robot(swarm, port, i, "--exit-after-silence-s", "2") for i in range(5)]
+    robots = [procs.robot(swarm, port, i) for i in range(5)]
     try:
         kit.wait_for(lambda: watcher.step() >= 8, 60, "the world to run 8 steps")
         robots[2].send_signal(signal.SIGKILL)
@@ -110,8 +110,7 @@ def test_world_killed_robots_hold_still_and_exit_log_readable(procs: Any, tmp_pa
     rt = ("--mode", "realtime", "--rate-hz", "20")
     world = procs.world(swarm, port, "--robots", "3", "--patterns", "circle,line,circle,line",
                         "--record", str(log), *rt)
-    robots = [procs.robot(swarm, port, i, *rt, "--watchdog-s", "0.5",
-                          "--exit-after-silence-s", "2") for i in range(3)]
+    robots = [procs.robot(swarm, port, i, *rt, "--watchdog-s", "0.5") for i in range(3)]
     watcher = kit.Watcher(swarm, port)
     try:
         kit.wait_for(lambda: watcher.step() >= 15, 60, "the world to run 15 steps")
@@ -140,7 +139,7 @@ def test_late_robot_is_counted_and_never_hangs(procs: Any, tmp_path: Path, kit: 
     world = procs.world(swarm, port, "--robots", "4", "--patterns", "circle", "--seed", "2",
                         "--record", str(log), "--step-deadline-ms", "100", "--wait-robots-s", "60")
     for i in range(3):
-        procs.robot(swarm, port, i, "--exit-after-silence-s", "2")
+        procs.robot(swarm, port, i)
     fake = kit.FakeRobot(swarm, port, 3, late=lambda step: 5 <= step < 15, delay_s=0.25)
     try:
         assert world.wait(timeout=90) == 0, procs.log("world")
@@ -249,7 +248,7 @@ def test_world_swaps_the_patterns_brain_into_every_robot(procs: Any, tmp_path: P
                         "--record", str(log), "--brains", "rule:assign", "--wait-robots-s", "60")
     for i in range(4):
         procs.start(f"robot{i}", "robot", "--swarm", swarm, "--id", str(i), "--zenoh-port",
-                    str(port), "--brain", str(wander), "--exit-after-silence-s", "2")
+                    str(port), "--brain", str(wander))
     assert world.wait(timeout=90) == 0, procs.log("world")
     run = read_log(log)
     swaps = run.events_of("brain_swap")
@@ -272,9 +271,9 @@ def test_robot_joins_mid_run_is_placed_and_the_pattern_grows(procs: Any, tmp_pat
     try:
         kit.wait_for(lambda: "world" in watcher.alive, 30, "the watcher to see the world")
         for i in range(3):
-            procs.robot(swarm, port, i, *rt, "--exit-after-silence-s", "2")
+            procs.robot(swarm, port, i, *rt)
         kit.wait_for(lambda: watcher.step() >= 5, 60, "the world to run 5 steps")
-        procs.robot(swarm, port, 3, *rt, "--exit-after-silence-s", "2")
+        procs.robot(swarm, port, 3, *rt)
         assert world.wait(timeout=90) == 0, procs.log("world")
     finally:
         watcher.close()

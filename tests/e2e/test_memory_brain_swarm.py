@@ -47,7 +47,7 @@ def test_robots_run_a_brain_with_memory_and_form(procs: Any, tmp_path: Path, kit
                         "--seed", "5", "--record", str(log), "--wait-robots-s", "60", "--json")
     for i in range(ROBOTS):
         procs.start(f"robot{i}", "robot", "--swarm", swarm, "--id", str(i), "--zenoh-port",
-                    str(port), "--brain", str(path), "--exit-after-silence-s", "2")
+                    str(port), "--brain", str(path))
     assert world.wait(timeout=100) == 0, procs.log("world")[-3000:]
     result = json.loads(procs.log("world").strip().splitlines()[-1])
     assert result["all_formed"], result

@@ -49,7 +49,7 @@ def test_late_commands_never_collide(procs: Any, tmp_path: Path, kit: Any) -> No
                         "--record", str(log), "--json", "--wait-robots-s", "120")
     for i in range(n):
         procs.robot(swarm, port, i, "--brain", GENERAL, "--mode", "realtime",
-                    "--debug-delay-ms", "130", "--exit-after-silence-s", "3")
+                    "--debug-delay-ms", "130")
     assert world.wait(timeout=200) in (0, 1), procs.log("world")[-2000:]  # 1: not formed
     result = json.loads(procs.log("world").strip().splitlines()[-1])
 
@@ -86,7 +86,7 @@ def test_slowed_robots_form_on_stale_commands(procs: Any, tmp_path: Path, kit: A
                         "--record", str(log), "--json", "--wait-robots-s", "120")
     for i in range(n):
         procs.robot(swarm, port, i, "--brain", GENERAL, "--mode", "realtime",
-                    "--debug-delay-ms", "250", "--exit-after-silence-s", "3")
+                    "--debug-delay-ms", "250")
     assert world.wait(timeout=200) == 0, procs.log("world")[-2000:]  # 0: formed
     (phase,) = json.loads(procs.log("world").strip().splitlines()[-1])["phases"]
     assert phase["formed"] and phase["collisions"] == 0
@@ -123,7 +123,7 @@ def test_thirty_robot_processes_decide_in_realtime(procs: Any, tmp_path: Path, k
                         "--seed", "1", "--mode", "realtime", "--max-steps", str(steps),
                         "--record", str(log), "--wait-robots-s", "150", *star)
     for i in range(n):
-        procs.robot(swarm, port, i, "--mode", "realtime", "--exit-after-silence-s", "3", *star)
+        procs.robot(swarm, port, i, "--mode", "realtime", *star)
     assert world.wait(timeout=220) in (0, 1), procs.log("world")[-2000:]  # 1: not formed
 
     run = read_log(log)

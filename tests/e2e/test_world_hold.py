@@ -59,8 +59,7 @@ def _sim_run(tmp: Path, tag: str, *extra: str) -> Run:
             cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         procs.append(world)
         procs += [subprocess.Popen(
-            [*cli, "robot", *net, "--id", str(i), "--brain", "rule:assign",
-             "--exit-after-silence-s", "2"],
+            [*cli, "robot", *net, "--id", str(i), "--brain", "rule:assign"],
             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             for i in range(ROBOTS)]
         out, _ = world.communicate(timeout=180)
