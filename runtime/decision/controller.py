@@ -202,13 +202,19 @@ class Controller:
 
     # -------------------------------------------------------------- decide
 
-    def _assign(self, pos: Array) -> tuple[IntArray, float, float]:
+    def _assign(self, pos: Array, moment: Array | None = None
+                ) -> tuple[IntArray, float, float]:
         """Step 1: the shared assignment with hysteresis, warm from the last step's
-        potentials; also the team's centroid (cx, cy)."""
+        potentials, of the team of one ``moment`` (None: ``pos``); also the centroid of
+        ``pos`` (cx, cy)."""
         if self._assignment is None:  # a new team or pattern: no warm start to keep
             self._assignment = TeamAssignment(self._cc)
         slots: IntArray = np.empty(len(pos), dtype=np.int64)
-        cx, cy = self._assignment.step(pos, slots)
+        if moment is None or np.shape(moment) != pos.shape:
+            cx, cy = self._assignment.step(pos, slots)
+        else:
+            self._assignment.step(np.ascontiguousarray(moment, dtype=np.float64), slots)
+            cx, cy = pos.mean(axis=0).tolist()
         self._prev_slots = slots
         return slots, cx, cy
 
@@ -325,6 +331,7 @@ class Controller:
         velocities: Array | None = None,
         filter_positions: Array | None = None,
         guard_ref: Array | None = None,
+        moment: Array | None = None,
     ) -> Decision:
         """Decide robot ``robot_index``'s velocity for this step.
 
@@ -342,7 +349,9 @@ class Controller:
         own extrapolation); None: ``positions``. ``guard_ref``: (n, 6), each peer as
         last sensed, this robot's pose then, the way the peer may have come since where
         an update was lost, and this robot's share of the pair's room, for the filter's guard
-        (:class:`runtime.decision.local.Seen`); None: as they are now.
+        (:class:`runtime.decision.local.Seen`); None: as they are now. ``moment``: (n, 2) the
+        team of one moment, which the assignment reads (:attr:`runtime.decision.local.Seen.moment`;
+        None: ``positions``).
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.
         """
@@ -363,7 +372,7 @@ class Controller:
             if math.hypot(dx, dy) > HEADING_MIN_MOVE_M:
                 self._heading = math.atan2(dy, dx)
         self._me, self._ref = i, guard_ref  # the raw views, for the landing's centroid
-        slots, cx, cy = self._assign(pos)  # 1. assign
+        slots, cx, cy = self._assign(pos, moment)  # 1. assign
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one
         V = self._vel

@@ -73,12 +73,17 @@ class Seen:
     for the steps its view is older; else 0), and the robot's share of the pair's room (0.5:
     half; :meth:`Perception.perceive`), for the filter's guard
     (:meth:`runtime.core.orca.OrcaFilter.robot`; None: both as they are now)."""
+    moment: Array | None = None
+    """(B, n, 2) m: the team of one moment, as the assignment reads it: each peer as sensed
+    (the tracker's, not carried along the plan) and the robot where it stood the latency's
+    age ago (:meth:`Perception.perceive`; None: ``plan``)."""
 
     def row(self, b: int) -> Seen:
         """Robot ``b``'s team alone (its arrays without the B axis)."""
         return Seen(self.plan[b], None if self.now is None else self.now[b],
                     None if self.vel is None else self.vel[b],
-                    None if self.guard_ref is None else self.guard_ref[b])
+                    None if self.guard_ref is None else self.guard_ref[b],
+                    None if self.moment is None else self.moment[b])
 
 
 class Perception:
@@ -212,8 +217,11 @@ class Perception:
         if old.any():
             ref[old, 0:2] = now[old]
             ref[old, 2:4] = np.broadcast_to(own[:, None], now.shape)[old]
-        plan = self.tracker.planned if self.estimator else view  # smoothed, along the plan
-        return Seen(plan, now, vel, ref)
+        if not self.estimator:
+            return Seen(view, now, vel, ref)
+        moment = self.tracker.sensed.copy()  # the assignment's team of one moment
+        moment[np.arange(B), self.observer] = self._own[min(late, GUARD_HISTORY_STEPS - 1)]
+        return Seen(self.tracker.planned, now, vel, ref, moment)  # smoothed, along the plan
 
     def _shares(self, view: Array, age: IntArray, step: int | None = None) -> Array:
         """(B, n) each robot's share of the guard's room with each peer: by need
@@ -299,7 +307,7 @@ class LocalDecisions:
                 b = e * n + i
                 mine = seen.row(b)
                 d = self.controllers[b].decide(i, mine.plan, C, self.step, mine.vel, mine.now,
-                                               mine.guard_ref)
+                                               mine.guard_ref, mine.moment)
                 out[e, i] = d.velocity
                 slots[e, i] = d.slot
                 changed[e, i] = d.safety_changed

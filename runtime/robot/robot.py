@@ -463,7 +463,7 @@ class Robot:
                 if self._view_pub is not None and self._perception is not None:
                     self._stage_view(step, seen)
                 d = self.controller.decide(me, seen.plan, pattern, step.step, seen.vel,
-                                           seen.now, seen.guard_ref)
+                                           seen.now, seen.guard_ref, seen.moment)
                 if d.error == ERR_NONFINITE:
                     d = self._nonfinite(step, pattern, d, seen)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
@@ -544,7 +544,7 @@ class Robot:
                              count=False)
         self._fallback_step = step.step
         fd = fb.decide(step.ids.index(self.id), seen.plan, pattern, step.step, seen.vel,
-                       seen.now, seen.guard_ref)
+                       seen.now, seen.guard_ref, seen.moment)
         return d if fd.error else fd
 
     def _send(self, step: int, d: Decision) -> None:

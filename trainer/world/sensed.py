@@ -133,6 +133,7 @@ class SensedRows:
         seen = self.perception.perceive(np.repeat(np.asarray(truth, dtype=np.float64), n, 0),
                                         self._follow)
         P = np.ascontiguousarray(seen.plan)  # (E n, n, 2) each robot's team
+        A = P if seen.moment is None else np.ascontiguousarray(seen.moment)  # one moment's
         V = np.zeros_like(P) if seen.vel is None else seen.vel
         C = np.repeat(np.asarray(pattern, dtype=np.float64), n, 0)
         Cc = np.ascontiguousarray(C - C.mean(axis=1, keepdims=True))
@@ -141,10 +142,10 @@ class SensedRows:
         for warm in (True, False):  # with hysteresis, and the teams that start without
             sel = self._has_prev == warm
             if sel.all():
-                assign_teams(P, Cc, prev, warm, self._potentials, slots)
+                assign_teams(A, Cc, prev, warm, self._potentials, slots)
             elif sel.any():
                 pot, out = self._potentials[sel], prev[sel].copy()
-                assign_teams(P[sel], Cc[sel], prev[sel], warm, pot, out)
+                assign_teams(A[sel], Cc[sel], prev[sel], warm, pot, out)
                 self._potentials[sel], slots[sel] = pot, out
         self._slots, self._has_prev[:] = slots, True
         K: Array = np.ones(E * n)

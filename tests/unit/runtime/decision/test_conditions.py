@@ -848,3 +848,36 @@ def test_a_landing_robot_takes_its_peers_velocities_from_the_plan() -> None:
     dodge = make_filter(settle.landed_safety(safety)).robot(0, 0, pos[None], stale[None], 0.0,
                                                              0.0, 0.1)
     assert dodge[0] < -0.05  # the tracker's velocity alone: pushed off towards -x
+
+
+def test_the_assignment_reads_the_team_of_one_moment_not_the_plans_carry() -> None:
+    """One step late, a peer the plan moves at 1 m/s keeps still (the guard held it, say):
+    the plan's view carries it a step along the plan, where it is not; the team of one
+    moment has it as sensed and the robot where it stood then. The controller's assignment
+    reads that moment: carried views made two robots keep slots that were no longer the
+    best, and a line of 50 stalled on them."""
+    from runtime.brain.brain import load_brain
+    from runtime.decision.controller import Controller
+    from runtime.decision.local import Perception
+
+    per = Perception(Conditions(latency_steps=1), np.arange(2),
+                     [np.random.SeedSequence((5, i)) for i in range(2)], estimator=True)
+    me = [np.array([0.0, 0.0])]
+    peer = np.array([1.0, 0.0])
+    plan = np.array([[[np.nan, np.nan], [1.0, 0.0]]] * 2)  # each robot's plan for robot 1
+    seen = per.perceive(np.array([[me[-1], peer]] * 2))
+    for _ in range(5):
+        me.append(me[-1] + [0.0, 0.05])
+        seen = per.perceive(np.array([[me[-1], peer]] * 2), plan)
+    assert seen.moment is not None
+    np.testing.assert_allclose(seen.plan[0, 1], peer + np.array([0.1, 0.0]), atol=1e-9)  # carried
+    np.testing.assert_allclose(seen.moment[0, 1], peer, atol=1e-9)  # as it is
+    np.testing.assert_allclose(seen.moment[0, 0], me[-2], atol=1e-12)  # a step ago
+    np.testing.assert_allclose(seen.plan[0, 0], me[-1], atol=1e-12)
+
+    pattern = np.array([[-0.2, 0.0], [0.2, 0.0]])
+    moment = np.array([[-1.0, 0.0], [1.0, 0.0]])  # robot 0 left of robot 1
+    carried = np.array([[-1.0, 0.0], [-3.0, 0.0]])  # the plan's view: robot 1 far left
+    brain = load_brain("rule:frame-balanced")
+    assert Controller(brain).decide(0, carried, pattern).slot == 1
+    assert Controller(brain).decide(0, carried, pattern, moment=moment).slot == 0
