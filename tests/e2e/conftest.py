@@ -39,17 +39,15 @@ from sim_bridge.world.sim_world import SimConfig
 ROOT = Path(__file__).resolve().parents[2]
 OPEN_COMMANDS = ("sim", "robot", "swap")
 """Started with --insecure: the watchers here join on open TCP (launch keeps its own TLS)."""
-ROBOT_SILENCE_EXIT_S = SimConfig.first_step_deadline_ms / 1000.0 + 3.0
-"""A robot's ``--exit-after-silence-s`` here: longer than the world's wait for a step that
-brings news (its first steps wait up to 5 s for the slowest robot, who may be late on a busy
-machine); a shorter one lets every other robot exit while the world still waits."""
 
 
 # re-exported: tests import these from conftest
+from support import ROBOT_SILENCE_EXIT_S, stop_processes  # noqa: E402
 from support import free_port as free_port  # noqa: E402
-from support import stop_processes  # noqa: E402
 from support import wait_for as wait_for  # noqa: E402
 from support.brains import write_test_brain  # noqa: E402
+
+assert float(ROBOT_SILENCE_EXIT_S) > SimConfig.first_step_deadline_ms / 1000.0
 
 
 def pid_alive(pid: int) -> bool:
@@ -98,7 +96,7 @@ class Procs:
     def robot(self, swarm: str, port: int, rid: int, *argv: str) -> subprocess.Popen[bytes]:
         return self.start(f"robot{rid}", "robot", "--swarm", swarm, "--id", str(rid),
                           "--zenoh-port", str(port), "--brain", "rule:assign",
-                          "--exit-after-silence-s", f"{ROBOT_SILENCE_EXIT_S:g}", *argv)
+                          "--exit-after-silence-s", ROBOT_SILENCE_EXIT_S, *argv)
 
     def log(self, name: str) -> str:
         return (self.tmp / f"{name}.log").read_text(errors="replace")

@@ -24,7 +24,7 @@ from typing import IO, Any
 import pytest
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
-from support import ROOT, free_port, wait_for
+from support import ROBOT_SILENCE_EXIT_S, ROOT, free_port, wait_for
 
 from patternrl.cli import main as cli
 from sim_bridge.launch.swarm_keys import create_swarm_keys
@@ -112,7 +112,8 @@ def test_live_view_and_outside_recording_of_a_running_swarm(tmp_path: Path) -> N
         client = FoxgloveClient("127.0.0.1", live_port)
         procs += [subprocess.Popen(
             [PY, "-m", "patternrl.cli", "robot", "--swarm", swarm, "--id", str(i), "--brain",
-             "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2", *tls],
+             "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s",
+             ROBOT_SILENCE_EXIT_S, *tls],
             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
             for i in range(3)]
         with client, _telling(sim_err):

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from support import ROOT, free_port, wait_for
+from support import ROBOT_SILENCE_EXIT_S, ROOT, free_port, wait_for
 from support.brains import write_test_brain
 
 from patternrl.cli import main as cli
@@ -83,7 +83,8 @@ def real_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     robots = [subprocess.Popen(
         [PY, "-m", "patternrl.cli", "robot", "--swarm", swarm, "--id", str(i), "--brain",
-         "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s", "2", "--insecure"],
+         "rule:assign", "--zenoh-port", str(port), "--exit-after-silence-s",
+         ROBOT_SILENCE_EXIT_S, "--insecure"],
         cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         for i in range(4)]
     try:

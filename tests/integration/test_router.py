@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from support import (
+    ROBOT_SILENCE_EXIT_S,
     Seen,
     forge_and_fence,
     forged_command,
@@ -150,7 +151,8 @@ def test_an_operators_swap_reaches_robot_clients_through_the_router(
             logs.append(log)
             procs.append(subprocess.Popen(
                 [*base, "robot", "--swarm", SWARM, "--id", str(i), "--brain",
-                 str(ROOT / "exports" / "general.onnx"), "--exit-after-silence-s", "5", *star],
+                 str(ROOT / "exports" / "general.onnx"), "--exit-after-silence-s",
+                 ROBOT_SILENCE_EXIT_S, *star],
                 cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stdout=log,
                 stderr=subprocess.STDOUT, start_new_session=True))
         with client(swarm_keys, "world", router.endpoint) as world:

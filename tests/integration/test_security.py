@@ -19,7 +19,15 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from support import Seen, forge_and_fence, forged_command, forged_keys, free_port, wait_for
+from support import (
+    ROBOT_SILENCE_EXIT_S,
+    Seen,
+    forge_and_fence,
+    forged_command,
+    forged_keys,
+    free_port,
+    wait_for,
+)
 
 from runtime.net.identity import load_identity
 from runtime.net.session import make_config, open_config
@@ -167,7 +175,7 @@ def test_a_swarm_with_certificates_forms_while_robot_1s_key_forges(
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     robots = [subprocess.Popen(
         [*base, "robot", "--swarm", SWARM, "--id", str(i), "--brain", "rule:assign",
-         "--exit-after-silence-s", "2", *tls],
+         "--exit-after-silence-s", ROBOT_SILENCE_EXIT_S, *tls],
         cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         for i in range(3)]
     stop = threading.Event()

@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 from netns_hosts import PY, ROOT, Net, cut_for, wait_for
+from support import ROBOT_SILENCE_EXIT_S
 
 from runtime.net.identity import load_identity
 from runtime.net.session import make_config, open_config
@@ -50,7 +51,7 @@ def start_world(net: Net, ns: str, swarm: str, keys_dir: Path, log: Path,
 def start_robots(net: Net, ns: str, swarm: str, keys_dir: Path, *zenoh: str) -> None:
     for i in range(ROBOTS):
         net.patternrl(ns, f"robot{i}", "robot", "--swarm", swarm, "--id", str(i),
-                      "--brain", "rule:assign", "--exit-after-silence-s", "5",
+                      "--brain", "rule:assign", "--exit-after-silence-s", ROBOT_SILENCE_EXIT_S,
                       "--identity", str(keys_dir / f"robot-{i}"), *zenoh)
 
 

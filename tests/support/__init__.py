@@ -11,12 +11,18 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 """The repository root."""
+ROBOT_SILENCE_EXIT_S = "8"
+"""A test robot's ``--exit-after-silence-s``: longer than the world's wait for a step that
+brings news (``SimConfig.first_step_deadline_ms``, 5 s: its first steps wait that long for the
+slowest robot, who may be late on a busy machine); a shorter one lets every other robot leave
+while the world still waits, and the run ends with no robots."""
 
 from support.episodes import assert_same_episodes  # noqa: E402
 from support.forgery import forge_and_fence, forged_command, forged_keys  # noqa: E402
 from support.net import Seen, free_port, stop_processes, wait_for  # noqa: E402
 
 __all__ = [
+    "ROBOT_SILENCE_EXIT_S",
     "ROOT",
     "Seen",
     "assert_same_episodes",
