@@ -43,12 +43,13 @@ import json
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from runtime.brain.brain import Brain, BrainError, load_brain
 from runtime.conditions import PERFECT, Conditions, parse_conditions
@@ -58,10 +59,12 @@ from runtime.decision.patterns import PatternError, make_pattern, pattern_label
 from runtime.decision.pipeline import decide_batch
 from runtime.decision.safety import OrcaParams, pattern_guard_note
 from runtime.errors import InputError
+from runtime.types import Array, BoolArray
 from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.adversary import ADVERSARY, ChargeBrain
 from trainer.world.training_world import RANDOM_PATTERN, BatchWorld, check_pattern
 
+_T = TypeVar("_T", bound=np.generic)
 HOLD_STEPS = 20
 """After a team first forms, it is watched this many steps more (a formation holds when
 formed on :data:`~runtime.world_config.HOLD_SHARE` of them, the world's rule too)."""
@@ -139,6 +142,13 @@ class EvalResult:
         }
 
 
+def _read_only(a: NDArray[_T]) -> NDArray[_T]:
+    """A view of ``a`` that a caller cannot write through."""
+    out = a.view()
+    out.flags.writeable = False
+    return out
+
+
 def evaluate_brain(
     brain: Brain,
     pattern: str,
@@ -153,6 +163,7 @@ def evaluate_brain(
     estimator: bool = False,
     hold_steps: int = HOLD_STEPS,
     naive: bool = False,
+    on_step: Callable[[Array, Array, BoolArray], None] | None = None,
 ) -> EvalResult:
     """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
 
@@ -161,7 +172,10 @@ def evaluate_brain(
     its own view, with its own safety filter sized for the conditions and, on a
     differential-drive base, its own heading (:class:`runtime.decision.local.LocalDecisions`;
     ``naive``: without what a robot knows of its sensing and wheels, for comparison). The
-    wheels of ``conditions`` act in the world either way."""
+    wheels of ``conditions`` act in the world either way. ``on_step(positions, pattern,
+    running)`` is called before each step with the teams as they truly are ((E, n, 2) m),
+    their patterns ((E, n, 2)) and which episodes still run ((E,)): read-only views, for a
+    caller that follows the episodes step by step (``benchmarks/steps_breakdown.py``)."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -198,6 +212,8 @@ def evaluate_brain(
     try:
         while not done.all():
             live = np.flatnonzero(~done)
+            if on_step is not None:
+                on_step(_read_only(bw.frames[:, 0]), _read_only(bw.pattern), _read_only(~done))
             vel = np.zeros((E, n_robots, 2))
             if local is not None:
                 v_all, slots_all, changed_all = local.decide(bw.frames[:, 0], bw.pattern,

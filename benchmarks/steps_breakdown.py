@@ -1,0 +1,185 @@
+"""Where a team's steps go under real-world conditions: the way in, the last centimetres, the frame.
+
+For each case (a condition of ``runtime.conditions``, named as in ``benchmarks/conditions.py``)
+it runs a brain on the same shapes, seeds and starts as ``benchmarks/conditions.py`` (episode
+e of shape s is env e of a world seeded ``--seed + index(s)``) and follows every episode step
+by step through ground truth. Per case, over the formed episodes, in units of each episode's
+steps lower bound:
+
+* ``steps`` -- steps to the first passage (formed), as ``benchmarks/conditions.py`` prints it;
+* ``20 cm`` / ``10 cm`` / ``5 cm`` -- the first step at which every robot lies within that of its
+  slot (the team's assignment, in its centroid frame: the world's own test, with a wider
+  tolerance);
+* ``last 5 cm`` -- steps from the 5 cm mark to formed (the world's 2.5 cm), not over the bound;
+* ``plan: enclosing / balanced / centroid`` -- the steps the synchronised plan would take from
+  the episode's start in the frame of the smallest enclosing circle, the frame of
+  `rule:frame-balanced` (a quarter of the way to the centroid) and the team's centroid frame
+  (where the plans land under noise, see docs/conditions.md), at full speed, no one in the way:
+  what each frame's geometry costs before any condition does.
+
+    .venv/bin/python benchmarks/steps_breakdown.py [--robots 50] [--episodes 10]
+        [--cases perfect,combined] [--brain rule:frame-balanced+est] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.conditions import CASES, SHAPES, split_cases  # noqa: E402 -- path set-up
+from runtime.brain.brain import load_brain  # noqa: E402
+from runtime.conditions import parse_conditions  # noqa: E402
+from runtime.decision.formation import (  # noqa: E402
+    assign_slots,
+    assign_slots_batch,
+    lower_bounds,
+    slot_distances,
+)
+from runtime.decision.rules import plan_targets  # noqa: E402
+from runtime.errors import InputError  # noqa: E402
+from runtime.types import Array, BoolArray  # noqa: E402
+from trainer.evaluate import evaluate_brain  # noqa: E402
+
+MARKS_M = (0.2, 0.1, 0.05)
+"""The ways to the slot (m) whose first passage by the whole team is timed."""
+FRAMES = {"enclosing": 0.0, "balanced": 0.25, "centroid": 1.0}
+"""The plan frames whose geometry is counted: their travel weights
+(:data:`runtime.decision.rules.FRAME_RULES`)."""
+
+
+class Follow:
+    """Each episode's worst way to a slot, step by step (the ``on_step`` of
+    :func:`trainer.evaluate.evaluate_brain`), and its start."""
+
+    def __init__(self) -> None:
+        self.worst: list[Array] = []  # per step (E,) m
+        self.start: tuple[Array, Array] | None = None  # positions, pattern at step 0
+
+    def __call__(self, pos: Array, pattern: Array, running: BoolArray) -> None:
+        if self.start is None:
+            self.start = (pos.copy(), pattern.copy())
+        slots = assign_slots_batch(pos, pattern)
+        self.worst.append(slot_distances(pos, pattern, slots).max(axis=-1))
+
+    def first_within(self, e: int, way_m: float, until: int) -> int:
+        """The first step (<= ``until``) at which episode e's worst way is under ``way_m``."""
+        for t in range(min(until + 1, len(self.worst))):
+            if self.worst[t][e] < way_m:
+                return t
+        return until
+
+
+def plan_steps(pos: Array, pattern: Array, weight: float) -> float:
+    """Steps the synchronised plan takes from ``pos`` (n, 2) to ``pattern`` in the frame of
+    travel weight ``weight``, the squared-distance assignment, nobody in the way."""
+    slots = assign_slots(pos, pattern)
+    _, k = plan_targets(pos[None], pattern[None], slots[None], weight)
+    return float(k[0])
+
+
+def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
+             shapes: tuple[str, ...]) -> dict[str, Any]:
+    """One case's row (see the module docstring)."""
+    estimator = brain_name.endswith("+est")
+    path = brain_name.removesuffix("+est")
+    brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
+    cond = parse_conditions(CASES.get(case, case))
+    sums: dict[str, float] = {"steps": 0.0, "last": 0.0, **{f"{m}": 0.0 for m in MARKS_M},
+                              **{k: 0.0 for k in FRAMES}}
+    formed_count = total = 0
+    for k, shape in enumerate(shapes):
+        follow = Follow()
+        r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
+                           estimator=estimator, progress=False, on_step=follow)
+        st = r.episode_stats
+        assert follow.start is not None
+        pos0, pat0 = follow.start
+        for e in range(episodes):
+            total += 1
+            if not st["formed"][e]:
+                continue
+            formed_count += 1
+            steps, lb = int(st["steps"][e]), float(st["lower_bound_steps"][e])
+            sums["steps"] += steps / lb
+            marks = [follow.first_within(e, m, steps) for m in MARKS_M]
+            for m, t in zip(MARKS_M, marks, strict=True):
+                sums[f"{m}"] += t / lb
+            sums["last"] += steps - marks[-1]
+            _, bound = lower_bounds(pos0[e], pat0[e])
+            for name, w in FRAMES.items():
+                sums[name] += plan_steps(pos0[e], pat0[e], w) / max(bound, 1)
+    f = max(formed_count, 1)
+    row: dict[str, Any] = {
+        "brain": brain_name, "case": case, "conditions": cond.name(), "robots": n,
+        "episodes": total, "formed": formed_count / max(total, 1),
+        "steps_ratio": sums["steps"] / f if formed_count else math.nan,
+        "within_m": {f"{m}": sums[f"{m}"] / f if formed_count else math.nan
+                     for m in MARKS_M},
+        "last_5cm_steps": sums["last"] / f if formed_count else math.nan,
+        "plan_frames": {k: sums[k] / f if formed_count else math.nan for k in FRAMES},
+    }
+    return row
+
+
+def format_rows(rows: list[dict[str, Any]]) -> str:
+    """The rows as a table (figures over each episode's steps lower bound)."""
+    head = ("case", "formed", "steps", "20 cm", "10 cm", "5 cm", "last 5 cm",
+            "plan: enclosing / balanced / centroid")
+    lines = [head]
+    for r in rows:
+        w = r["within_m"]
+        pf = r["plan_frames"]
+        lines.append((
+            r["case"], f"{100 * r['formed']:.0f} %", f"{r['steps_ratio']:.3f}",
+            *(f"{w[f'{m}']:.3f}" for m in MARKS_M), f"{r['last_5cm_steps']:.2f} steps",
+            " / ".join(f"{pf[k]:.3f}" for k in FRAMES)))
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    return "\n".join("  ".join(c.ljust(wd) for c, wd in zip(line, widths, strict=True)).rstrip()
+                     for line in lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robots", type=int, default=50, help="team size (default 50)")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per shape (default 10)")
+    p.add_argument("--seed", type=int, default=3_000_000, help="world seed (default 3000000)")
+    p.add_argument("--cases", default="perfect,combined",
+                   help="comma-separated case names of benchmarks/conditions.py or presets, "
+                        "or ';'-separated condition specs (default perfect,combined)")
+    p.add_argument("--brain", default="rule:frame-balanced+est",
+                   help="a brain (rule or .onnx path); '+est' decides on the peer tracker's "
+                        "estimates (default rule:frame-balanced+est)")
+    p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    a = p.parse_args(argv)
+    if a.robots < 2 or a.episodes < 1:
+        print("steps_breakdown: --robots must be >= 2 and --episodes >= 1", file=sys.stderr)
+        return 2
+    shapes = tuple(s.strip() for s in a.shapes.split(",") if s.strip())
+    try:
+        rows = [run_case(a.brain, c, a.robots, a.episodes, a.seed, shapes)
+                for c in split_cases(a.cases)]
+    except (InputError, ValueError, FileNotFoundError) as err:
+        print(f"steps_breakdown: {err}", file=sys.stderr)
+        return 2
+    if a.json:
+        print(json.dumps({"robots": a.robots, "episodes_per_shape": a.episodes,
+                          "seed": a.seed, "brain": a.brain, "rows": rows}, indent=1))
+    else:
+        print(f"{a.brain}, {a.robots} robots, {a.episodes} episodes per shape "
+              f"({', '.join(shapes)}), seed {a.seed}; figures over each episode's steps "
+              f"lower bound")
+        print(format_rows(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
