@@ -17,6 +17,8 @@ steps lower bound:
   (where the plans land under noise, see docs/conditions.md), at full speed, no one in the way:
   what each frame's geometry costs before any condition does.
 
+On a terminal a bar shows each case and shape as it runs; ``--json`` prints one object.
+
     .venv/bin/python benchmarks/steps_breakdown.py [--robots 50] [--episodes 10]
         [--cases perfect,combined] [--brain rule:frame-balanced+est] [--json]
 """
@@ -97,7 +99,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
     for k, shape in enumerate(shapes):
         follow = Follow()
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
-                           estimator=estimator, progress=False, on_step=follow)
+                           estimator=estimator, progress=None, label=f"{case} {shape}",
+                           on_step=follow)  # a bar on a terminal only
         st = r.episode_stats
         assert follow.start is not None
         pos0, pat0 = follow.start
