@@ -20,7 +20,11 @@ steps lower bound:
 On a terminal a bar shows each case and shape as it runs; ``--json`` prints one object.
 
     .venv/bin/python benchmarks/steps_breakdown.py [--robots 50] [--episodes 10]
-        [--cases perfect,combined] [--brain rule:frame-balanced+est] [--json]
+        [--cases perfect,combined] [--brain rule:frame-balanced+est] [--from PATTERN] [--json]
+
+``--from PATTERN`` starts every episode with that pattern just formed: a transition from one
+pattern of a sequence to the next, as ``patternrl launch`` (the demo) runs them, where the
+way is short and every step over the bound weighs more.
 """
 
 from __future__ import annotations
@@ -87,8 +91,9 @@ def plan_steps(pos: Array, pattern: Array, weight: float) -> float:
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
-             shapes: tuple[str, ...]) -> dict[str, Any]:
-    """One case's row (see the module docstring)."""
+             shapes: tuple[str, ...], start: str | None = None) -> dict[str, Any]:
+    """One case's row (see the module docstring); ``start``: every episode starts with that
+    pattern just formed (None: random starts)."""
     estimator = brain_name.endswith("+est")
     path = brain_name.removesuffix("+est")
     brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
@@ -100,7 +105,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
         follow = Follow()
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
                            estimator=estimator, progress=None, label=f"{case} {shape}",
-                           on_step=follow)  # a bar on a terminal only
+                           on_step=follow, start_pattern=start)  # a bar on a terminal only
         st = r.episode_stats
         assert follow.start is not None
         pos0, pat0 = follow.start
@@ -121,7 +126,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
     f = max(formed_count, 1)
     row: dict[str, Any] = {
         "brain": brain_name, "case": case, "conditions": cond.name(), "robots": n,
-        "episodes": total, "formed": formed_count / max(total, 1),
+        "start": start or "random", "episodes": total, "formed": formed_count / max(total, 1),
         "steps_ratio": sums["steps"] / f if formed_count else math.nan,
         "within_m": {f"{m}": sums[f"{m}"] / f if formed_count else math.nan
                      for m in MARKS_M},
@@ -161,6 +166,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="a brain (rule or .onnx path); '+est' decides on the peer tracker's "
                         "estimates (default rule:frame-balanced+est)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
+    p.add_argument("--from", dest="start", metavar="PATTERN",
+                   help="start every episode with this pattern just formed: the transition "
+                        "from it, as in a launch's sequence (default: random starts)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     a = p.parse_args(argv)
     if a.robots < 2 or a.episodes < 1:
@@ -168,18 +176,20 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     shapes = tuple(s.strip() for s in a.shapes.split(",") if s.strip())
     try:
-        rows = [run_case(a.brain, c, a.robots, a.episodes, a.seed, shapes)
+        rows = [run_case(a.brain, c, a.robots, a.episodes, a.seed, shapes, a.start)
                 for c in split_cases(a.cases)]
     except (InputError, ValueError, FileNotFoundError) as err:
         print(f"steps_breakdown: {err}", file=sys.stderr)
         return 2
     if a.json:
         print(json.dumps({"robots": a.robots, "episodes_per_shape": a.episodes,
-                          "seed": a.seed, "brain": a.brain, "rows": rows}, indent=1))
+                          "seed": a.seed, "brain": a.brain, "start": a.start or "random",
+                          "rows": rows}, indent=1))
     else:
         print(f"{a.brain}, {a.robots} robots, {a.episodes} episodes per shape "
-              f"({', '.join(shapes)}), seed {a.seed}; figures over each episode's steps "
-              f"lower bound")
+              f"({', '.join(shapes)}), seed {a.seed}, "
+              f"{'from ' + a.start + ' formed' if a.start else 'random starts'}; figures over "
+              f"each episode's steps lower bound")
         print(format_rows(rows))
     return 0
 

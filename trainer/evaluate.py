@@ -104,6 +104,8 @@ class EvalResult:
     """Of the formed episodes, the share that held (>= HOLD_SHARE of the window formed)."""
     hold_share: float = math.nan
     """Of the formed episodes, the mean share of the hold window's steps formed."""
+    start: str = "random"
+    """Where the episodes start: ``random`` starts, or the pattern they start formed in."""
     episode_stats: dict[str, list[float]] = field(default_factory=dict, repr=False)
     """Per episode (index e = env e): formed, steps, travel_m, lower_bound_steps,
     lower_bound_travel_m, collisions, min_separation_m."""
@@ -164,6 +166,7 @@ def evaluate_brain(
     hold_steps: int = HOLD_STEPS,
     naive: bool = False,
     on_step: Callable[[Array, Array, BoolArray], None] | None = None,
+    start_pattern: str | None = None,
 ) -> EvalResult:
     """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
 
@@ -175,7 +178,9 @@ def evaluate_brain(
     wheels of ``conditions`` act in the world either way. ``on_step(positions, pattern,
     running)`` is called before each step with the teams as they truly are ((E, n, 2) m),
     their patterns ((E, n, 2)) and which episodes still run ((E,)): read-only views, for a
-    caller that follows the episodes step by step (``benchmarks/steps_breakdown.py``)."""
+    caller that follows the episodes step by step (``benchmarks/steps_breakdown.py``).
+    ``start_pattern``: every episode starts with that pattern just formed (a transition, as
+    in ``patternrl launch``'s sequence), not from random starts."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -188,6 +193,7 @@ def evaluate_brain(
         build_obs=False,
         conditions=conditions,
         hold_steps=hold_steps,
+        start_pattern=start_pattern,
     )
     local = None
     if estimator or conditions != PERFECT or brain.spec.memory_dim:  # robot by robot
@@ -278,6 +284,7 @@ def evaluate_brain(
         hold_steps=hold_steps,
         held_rate=float(holds[formed].mean()) if hold_steps and formed.any() else math.nan,
         hold_share=float(held[formed].mean()) if hold_steps and formed.any() else math.nan,
+        start="random" if start_pattern is None else pattern_label(start_pattern),
         episode_stats={
             "formed": formed.astype(float).tolist(),
             "steps": steps.tolist(),
@@ -339,7 +346,8 @@ def format_table(r: EvalResult) -> str:
 
     rows = [
         ("brain", f"{r.brain} ({r.brain_id[:12]})"),
-        ("task", f"{r.pattern}, {r.n_robots} robots, {r.episodes} episodes, seed {r.seed}"),
+        ("task", f"{r.pattern}, {r.n_robots} robots, {r.episodes} episodes, seed {r.seed}"
+                 + ("" if r.start == "random" else f", from {r.start} formed")),
         ("safety filter", r.safety),
         ("success", f"{pct(r.success_rate)}  (formed, no collision, within the step limit)"),
         ("formed", pct(r.formed_rate) + "  (first passage)"),
@@ -412,6 +420,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"steps watched after the team first forms; a success holds the "
                    f"formation {HOLD_SHARE * 100:.0f}%% of them (default {HOLD_STEPS}; 0: success "
                    f"at the first passage)")
+    p.add_argument("--from", dest="start_pattern", metavar="PATTERN",
+                   help="start every episode with this pattern just formed (a built-in or a "
+                   "file, the same team size): the transition from it, as in a launch's "
+                   "sequence (default: random starts)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -450,6 +462,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         check_pattern(pattern, n)
+        if args.start_pattern is not None:
+            check_pattern(args.start_pattern, n)
         conditions = parse_conditions(args.conditions)
     except (PatternError, InputError) as e:
         print(f"patternrl eval: {e}", file=sys.stderr)
@@ -475,6 +489,7 @@ def run(args: argparse.Namespace) -> int:
         conditions=conditions,
         estimator=args.estimator,
         hold_steps=args.hold_steps,
+        start_pattern=args.start_pattern,
     )
     if args.json:
         print(json.dumps(res.to_dict(), allow_nan=False))

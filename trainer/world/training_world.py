@@ -47,8 +47,11 @@ Starts and patterns
     [a, b) of a larger batch (one Ray worker's share) draws what that batch's
     envs would. A reset draws the pattern (one of the set, uniformly) and then
     N starts uniform in the arena, pairwise >= ``start_separation`` apart
-    (every robot too close to a lower-numbered one is redrawn). Patterns are
-    ``make_pattern(name, N)`` (cached); ``"random"`` draws a ``random_pattern``.
+    (every robot too close to a lower-numbered one is redrawn), or, with
+    ``start_pattern``, that pattern formed at the arena's centre (each robot within
+    half the formed tolerance of its point: a transition, as from one pattern of a
+    sequence to the next). Patterns are ``make_pattern(name, N)`` (cached);
+    ``"random"`` draws a ``random_pattern``.
 """
 
 from __future__ import annotations
@@ -156,6 +159,7 @@ class BatchWorld:
         rank_goals: bool = False,
         conditions: Conditions = PERFECT,
         hold_steps: int = 0,
+        start_pattern: str | Path | None = None,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -174,6 +178,10 @@ class BatchWorld:
             raise ValueError(f"hold_steps must be >= 0, got {hold_steps}")
         self.conditions = conditions
         self.hold_steps = int(hold_steps)
+        self._start: Array | None = None  # a formed pattern every episode starts in
+        if start_pattern is not None and str(start_pattern) != RANDOM_PATTERN:
+            start = make_pattern(start_pattern, n_robots, world)
+            self._start = start - start.mean(axis=0) + 0.5 * world.arena_m
         self.n_envs = n_envs
         self.first_env = first_env
         self.n_robots = n_robots
@@ -317,13 +325,23 @@ class BatchWorld:
     # ------------------------------------------------------------------ reset
 
     def _draw_starts(self, ids: IntArray) -> Array:
-        """N starts per env of ``ids``, uniform in the arena, pairwise >= start_separation.
+        """N starts per env of ``ids``, uniform in the arena, pairwise >= start_separation;
+        with a start pattern, that pattern formed at the arena's centre, each robot within
+        half the formed tolerance of its point (a team that has just formed it).
 
         Each env draws from its own generator only, and what it redraws depends
         only on its own points, so its starts do not depend on which other envs
         reset with it. Returns (k, N, 2).
         """
         rngs = [self._rngs[int(e)] for e in ids]
+        if self._start is not None:
+            half = 0.5 * self.world.formed_tol_m
+            out = []
+            for rng in rngs:
+                r = half * np.sqrt(rng.uniform(0.0, 1.0, self.n_robots))
+                a = rng.uniform(0.0, 2.0 * math.pi, self.n_robots)
+                out.append(self._start + np.stack([r * np.cos(a), r * np.sin(a)], axis=1))
+            return np.stack(out)
         N, side = self.n_robots, self.world.arena_m
         sep2 = self.world.start_separation_m**2
         P = np.stack([rng.uniform(0.0, side, (N, 2)) for rng in rngs])

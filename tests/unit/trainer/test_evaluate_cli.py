@@ -83,3 +83,33 @@ def test_eval_notes_a_pattern_inside_the_guard_and_a_wider_one_forms(
     for extra in (["--conditions", "perfect"], ["--safety", "off"]):
         assert main([*base, "--pattern", "circle", *extra]) == 0
         assert capsys.readouterr().err == ""
+
+
+def test_eval_from_a_formed_pattern_measures_the_transition(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--from circle``: every episode starts with the circle formed, so the cross is a short
+    way off (the circle and the cross of 10 share their centre), far shorter than from random
+    starts; the result names the start."""
+    import json
+
+    def run(*extra: str) -> dict[str, object]:
+        argv = ["eval", "--brain", "rule:frame-balanced", "--pattern", "cross", "--robots",
+                "10", "--episodes", "3", "--no-progress", "--json", *extra]
+        assert main(argv) == 0
+        out: dict[str, object] = json.loads(capsys.readouterr().out)
+        return out
+
+    formed, random = run("--from", "circle"), run()
+    assert formed["start"] == "circle" and random["start"] == "random"
+    assert formed["success_rate"] == 1.0
+    assert isinstance(formed["mean_steps"], float) and isinstance(random["mean_steps"], float)
+    assert formed["mean_steps"] < 0.5 * random["mean_steps"]
+
+
+def test_eval_refuses_an_unknown_start_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["eval", "--brain", "rule:assign", "--pattern", "cross", "--robots", "10",
+            "--episodes", "1", "--no-progress", "--from", "spiral"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "spiral" in err[0] and err[0].startswith("patternrl eval:")

@@ -81,3 +81,11 @@ def test_json_rows_per_case_and_a_bad_case_a_one_line_error() -> None:
     bad = _run("--cases", "noise_m=0.05,bogus=1", "--episodes", "1", "--robots", "7")
     assert bad.returncode == 2
     assert "bogus=1" in bad.stderr.strip().splitlines()[-1] and "Traceback" not in bad.stderr
+
+
+def test_from_a_formed_pattern_the_way_is_short_and_the_start_named(bench: ModuleType) -> None:
+    row = bench.run_case("rule:frame-balanced+est", "perfect", 10, 2, 3_000_000, ("cross",),
+                         start="circle")
+    assert row["start"] == "circle" and row["formed"] == 1.0
+    assert row["plan_frames"]["enclosing"] >= 1.0
+    assert row["within_m"]["0.2"] <= row["steps_ratio"]

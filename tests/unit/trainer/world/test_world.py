@@ -12,6 +12,7 @@ from runtime.decision.formation import (
     assign_slots_batch,
     count_collisions,
     formation_error_batch,
+    is_formed,
     min_separation,
     robot_pairs,
     slot_distances,
@@ -89,6 +90,23 @@ def test_starts_respect_separation_and_arena() -> None:
         assert np.all(min_separation(w.positions) >= W.start_separation_m)
         assert np.all((w.positions >= 0) & (w.positions <= W.arena_m))
         np.testing.assert_array_equal(w.prev_positions, w.positions)
+
+
+def test_a_start_pattern_starts_every_episode_formed_in_it() -> None:
+    """A transition: the start pattern formed (each robot within half the tolerance of its
+    point, at the arena's centre), jittered per env from its own generator, reproducibly."""
+    w = make(n_envs=8, n_robots=10, patterns=("cross",), start_pattern="circle", seed=3)
+    w.reset()
+    circle = make_pattern("circle", 10)
+    for e in range(8):
+        assert is_formed(w.positions[e], circle)
+        off = w.positions[e] - (circle - circle.mean(axis=0) + 0.5 * W.arena_m)
+        assert np.hypot(off[:, 0], off[:, 1]).max() <= 0.5 * W.formed_tol_m
+        assert not is_formed(w.positions[e], make_pattern("cross", 10))
+    assert not np.allclose(w.positions[0], w.positions[1])  # each env its own jitter
+    again = make(n_envs=8, n_robots=10, patterns=("cross",), start_pattern="circle", seed=3)
+    again.reset()
+    np.testing.assert_array_equal(again.positions, w.positions)
 
 
 def test_patterns_drawn_per_env_and_random_shapes() -> None:
