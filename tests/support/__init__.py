@@ -7,7 +7,10 @@ and robot processes to drive).
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
+from types import ModuleType
 
 ROOT = Path(__file__).resolve().parents[2]
 """The repository root."""
@@ -21,6 +24,17 @@ from support.episodes import assert_same_episodes  # noqa: E402
 from support.forgery import forge_and_fence, forged_command, forged_keys  # noqa: E402
 from support.net import Seen, free_port, stop_processes, wait_for  # noqa: E402
 
+
+def load_benchmark(name: str) -> ModuleType:
+    """``benchmarks/<name>.py`` imported as a module (``t_<name>``), for its functions."""
+    spec = importlib.util.spec_from_file_location(f"t_{name}", ROOT / "benchmarks" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
 __all__ = [
     "ROBOT_SILENCE_EXIT_S",
     "ROOT",
@@ -30,6 +44,7 @@ __all__ = [
     "forged_command",
     "forged_keys",
     "free_port",
+    "load_benchmark",
     "stop_processes",
     "wait_for",
 ]

@@ -2,25 +2,18 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
 from types import ModuleType
 
 import pytest
-from support import ROOT
+from support import ROOT, load_benchmark
 
 
 @pytest.fixture(scope="module")
 def bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("t_conditions_bench",
-                                                  ROOT / "benchmarks" / "conditions.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("conditions")
 
 
 @pytest.mark.parametrize(("text", "cases"), [

@@ -7,16 +7,14 @@ ORCA time horizon, which the baselines' comparison rests on.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
-from support import ROOT
+from support import load_benchmark
 from support.brains import trainer_sized_mlp, write_brain
 
 from runtime.brain.brain import RULE_ASSIGN, load_brain
@@ -26,18 +24,9 @@ from runtime.world_config import DEFAULT_WORLD
 from trainer.evaluate import evaluate_brain
 
 
-def _bench(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"t_{name}", ROOT / "benchmarks" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def pe() -> ModuleType:
-    return _bench("paper_experiments")
+    return load_benchmark("paper_experiments")
 
 
 def _stats(formed: list[bool], travel: list[float], steps: list[float]) -> Any:

@@ -3,7 +3,6 @@ by step through ground truth."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -11,7 +10,7 @@ from types import ModuleType
 
 import numpy as np
 import pytest
-from support import ROOT
+from support import ROOT, load_benchmark
 
 from runtime.brain.brain import load_brain
 from runtime.conditions import parse_conditions
@@ -21,13 +20,7 @@ from trainer.evaluate import HOLD_STEPS, evaluate_brain
 
 @pytest.fixture(scope="module")
 def bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("t_steps_breakdown",
-                                                  ROOT / "benchmarks" / "steps_breakdown.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("steps_breakdown")
 
 
 def test_on_step_sees_every_step_of_every_episode_as_the_world_has_it() -> None:
