@@ -17,7 +17,9 @@ steps lower bound:
   (where the plans land under noise, see docs/conditions.md), at full speed, no one in the way:
   what each frame's geometry costs before any condition does.
 
-On a terminal a bar shows each case and shape as it runs; ``--json`` prints one object.
+On a terminal a bar shows each case and shape as it runs; ``--json`` prints one object (with
+each case's curve: the worst way, mean over the formed episodes, on a grid of steps over the
+bound), ``--png FILE`` draws those curves.
 
     .venv/bin/python benchmarks/steps_breakdown.py [--robots 50] [--episodes 10]
         [--cases perfect,combined] [--brain rule:frame-balanced+est] [--from PATTERN] [--json]
@@ -36,6 +38,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -53,6 +57,9 @@ from runtime.errors import InputError  # noqa: E402
 from runtime.types import Array, BoolArray  # noqa: E402
 from trainer.evaluate import evaluate_brain  # noqa: E402
 
+CURVE_X = tuple(round(0.02 * i, 2) for i in range(0, 201))
+"""The grid of the curve (steps over the episode's lower bound, 0 to 4) the worst way is
+averaged on for ``--png``."""
 MARKS_M = (0.2, 0.1, 0.05)
 """The ways to the slot (m) whose first passage by the whole team is timed."""
 FRAMES = {"enclosing": 0.0, "balanced": 0.25, "centroid": 1.0}
@@ -101,6 +108,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
     sums: dict[str, float] = {"steps": 0.0, "last": 0.0, **{f"{m}": 0.0 for m in MARKS_M},
                               **{k: 0.0 for k in FRAMES}}
     formed_count = total = 0
+    curve = np.zeros(len(CURVE_X))
     for k, shape in enumerate(shapes):
         follow = Follow()
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
@@ -120,6 +128,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
             for m, t in zip(MARKS_M, marks, strict=True):
                 sums[f"{m}"] += t / lb
             sums["last"] += steps - marks[-1]
+            way = [float(follow.worst[t][e]) for t in range(steps + 1)]
+            curve += np.interp(CURVE_X, np.arange(steps + 1) / lb, way, right=way[-1])
             _, bound = lower_bounds(pos0[e], pat0[e])
             for name, w in FRAMES.items():
                 sums[name] += plan_steps(pos0[e], pat0[e], w) / max(bound, 1)
@@ -132,8 +142,44 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
                      for m in MARKS_M},
         "last_5cm_steps": sums["last"] / f if formed_count else math.nan,
         "plan_frames": {k: sums[k] / f if formed_count else math.nan for k in FRAMES},
+        "curve": {"x": list(CURVE_X),
+                  "worst_way_m": (curve / f).round(4).tolist() if formed_count else []},
     }
     return row
+
+
+def plot(rows: list[dict[str, Any]], path: Path, title: str) -> None:
+    """Each case's worst way to a slot (mean over its formed episodes) against the steps over
+    each episode's lower bound, the 20/10/5 cm marks and the bound, into ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=120)
+    last = 1.0
+    for r in rows:
+        y = r["curve"]["worst_way_m"]
+        if not y:
+            continue
+        ax.plot(r["curve"]["x"], y, label=f"{r['case']} (formed at {r['steps_ratio']:.3f}x)")
+        last = max(last, r["steps_ratio"])
+    for m in MARKS_M:
+        ax.axhline(m, color="grey", lw=0.6, ls=":")
+    ax.axvline(1.0, color="black", lw=0.8, ls="--", label="the lower bound")
+    ax.set_xlim(0.0, min(CURVE_X[-1], 1.15 * last))
+    ax.set_yscale("log")
+    ticks = [0.01, 0.025, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0]
+    ax.set_yticks(ticks, [f"{t:g}" for t in ticks])
+    ax.minorticks_off()
+    ax.set_ylim(0.01, None)
+    ax.set_xlabel("steps over the episode's lower bound")
+    ax.set_ylabel("worst robot's way to its slot (m, mean)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def format_rows(rows: list[dict[str, Any]]) -> str:
@@ -169,6 +215,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--from", dest="start", metavar="PATTERN",
                    help="start every episode with this pattern just formed: the transition "
                         "from it, as in a launch's sequence (default: random starts)")
+    p.add_argument("--png", type=Path, metavar="FILE",
+                   help="also draw each case's worst way to a slot against the steps over the "
+                        "lower bound into FILE")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     a = p.parse_args(argv)
     if a.robots < 2 or a.episodes < 1:
@@ -181,6 +230,10 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, ValueError, FileNotFoundError) as err:
         print(f"steps_breakdown: {err}", file=sys.stderr)
         return 2
+    title = (f"{a.brain}, {a.robots} robots, {a.episodes} per shape ({', '.join(shapes)}), "
+             f"{'from ' + a.start + ' formed' if a.start else 'random starts'}")
+    if a.png is not None:
+        plot(rows, a.png, title)
     if a.json:
         print(json.dumps({"robots": a.robots, "episodes_per_shape": a.episodes,
                           "seed": a.seed, "brain": a.brain, "start": a.start or "random",

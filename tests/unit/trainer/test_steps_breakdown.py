@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 from types import ModuleType
 
 import numpy as np
@@ -53,6 +54,9 @@ def test_the_breakdown_counts_the_way_in_and_each_frames_geometry(bench: ModuleT
     within = [row["within_m"][f"{m}"] for m in bench.MARKS_M]
     assert within == sorted(within)  # 20 cm, then 10, then 5
     assert within[-1] <= row["steps_ratio"]
+    way = row["curve"]["worst_way_m"]
+    assert len(way) == len(bench.CURVE_X)
+    assert way[0] > 0.2 > way[-1]  # far off at the start, in at the end
     frames = row["plan_frames"]
     # the enclosing circle's frame brings the farthest robot nearest: never more steps
     assert frames["enclosing"] <= frames["balanced"] <= frames["centroid"]
@@ -64,10 +68,12 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
                            *args], capture_output=True, text=True, timeout=600, check=False)
 
 
-def test_json_rows_per_case_and_a_bad_case_a_one_line_error() -> None:
+def test_json_rows_per_case_a_figure_and_a_bad_case_a_one_line_error(tmp_path: Path) -> None:
+    png = tmp_path / "ways.png"
     out = _run("--robots", "7", "--episodes", "1", "--shapes", "circle",
-               "--cases", "perfect,late2", "--json")
+               "--cases", "perfect,late2", "--json", "--png", str(png))
     assert out.returncode == 0, out.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     rows = json.loads(out.stdout)["rows"]
     assert [r["case"] for r in rows] == ["perfect", "late2"]
     assert rows[1]["conditions"].endswith("latency_steps=2")
