@@ -98,9 +98,11 @@ def plan_steps(pos: Array, pattern: Array, weight: float) -> float:
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
-             shapes: tuple[str, ...], start: str | None = None) -> dict[str, Any]:
+             shapes: tuple[str, ...], start: str | None = None, agree: bool = False
+             ) -> dict[str, Any]:
     """One case's row (see the module docstring); ``start``: every episode starts with that
-    pattern just formed (None: random starts)."""
+    pattern just formed (None: random starts); ``agree``: the robots' slot agreement
+    (:mod:`runtime.decision.agreement`)."""
     estimator = brain_name.endswith("+est")
     path = brain_name.removesuffix("+est")
     brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
@@ -113,7 +115,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
         follow = Follow()
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
                            estimator=estimator, progress=None, label=f"{case} {shape}",
-                           on_step=follow, start_pattern=start)  # a bar on a terminal only
+                           on_step=follow, start_pattern=start,
+                           agree=agree)  # a bar on a terminal only
         st = r.episode_stats
         assert follow.start is not None
         pos0, pat0 = follow.start
@@ -212,6 +215,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="a brain (rule or .onnx path); '+est' decides on the peer tracker's "
                         "estimates (default rule:frame-balanced+est)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
+    p.add_argument("--agree", action="store_true",
+                   help="the robots tell each other their slots (slot agreement; "
+                        "runtime/decision/agreement.py)")
     p.add_argument("--from", dest="start", metavar="PATTERN",
                    help="start every episode with this pattern just formed: the transition "
                         "from it, as in a launch's sequence (default: random starts)")
@@ -225,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     shapes = tuple(s.strip() for s in a.shapes.split(",") if s.strip())
     try:
-        rows = [run_case(a.brain, c, a.robots, a.episodes, a.seed, shapes, a.start)
+        rows = [run_case(a.brain, c, a.robots, a.episodes, a.seed, shapes, a.start, a.agree)
                 for c in split_cases(a.cases)]
     except (InputError, ValueError, FileNotFoundError) as err:
         print(f"steps_breakdown: {err}", file=sys.stderr)
@@ -237,12 +243,14 @@ def main(argv: list[str] | None = None) -> int:
     if a.json:
         print(json.dumps({"robots": a.robots, "episodes_per_shape": a.episodes,
                           "seed": a.seed, "brain": a.brain, "start": a.start or "random",
+                          "agree": a.agree,
                           "rows": rows}, indent=1))
     else:
         print(f"{a.brain}, {a.robots} robots, {a.episodes} episodes per shape "
               f"({', '.join(shapes)}), seed {a.seed}, "
-              f"{'from ' + a.start + ' formed' if a.start else 'random starts'}; figures over "
-              f"each episode's steps lower bound")
+              f"{'from ' + a.start + ' formed' if a.start else 'random starts'}"
+              f"{', slot agreement' if a.agree else ''}; figures over each episode's steps "
+              f"lower bound")
         print(format_rows(rows))
     return 0
 

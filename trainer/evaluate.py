@@ -106,6 +106,8 @@ class EvalResult:
     """Of the formed episodes, the mean share of the hold window's steps formed."""
     start: str = "random"
     """Where the episodes start: ``random`` starts, or the pattern they start formed in."""
+    agree: bool = False
+    """Whether the robots told each other their slots (:mod:`runtime.decision.agreement`)."""
     episode_stats: dict[str, list[float]] = field(default_factory=dict, repr=False)
     """Per episode (index e = env e): formed, steps, travel_m, lower_bound_steps,
     lower_bound_travel_m, collisions, min_separation_m."""
@@ -167,6 +169,7 @@ def evaluate_brain(
     naive: bool = False,
     on_step: Callable[[Array, Array, BoolArray], None] | None = None,
     start_pattern: str | None = None,
+    agree: bool = False,
 ) -> EvalResult:
     """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
 
@@ -180,7 +183,9 @@ def evaluate_brain(
     their patterns ((E, n, 2)) and which episodes still run ((E,)): read-only views, for a
     caller that follows the episodes step by step (``benchmarks/steps_breakdown.py``).
     ``start_pattern``: every episode starts with that pattern just formed (a transition, as
-    in ``patternrl launch``'s sequence), not from random starts."""
+    in ``patternrl launch``'s sequence), not from random starts. ``agree``: under imperfect
+    sensing the robots tell each other their slots and go by the leader's assignment where
+    two of them hold one slot (:mod:`runtime.decision.agreement`)."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -198,7 +203,8 @@ def evaluate_brain(
     local = None
     if estimator or conditions != PERFECT or brain.spec.memory_dim:  # robot by robot
         local = LocalDecisions(brain, episodes, n_robots, conditions, estimator=estimator,
-                               safety=safety, seed=seed, world=world, naive=naive)
+                               safety=safety, seed=seed, world=world, naive=naive,
+                               agree=agree)
     E = episodes
     done = np.zeros(E, bool)
     formed = np.zeros(E, bool)
@@ -285,6 +291,7 @@ def evaluate_brain(
         held_rate=float(holds[formed].mean()) if hold_steps and formed.any() else math.nan,
         hold_share=float(held[formed].mean()) if hold_steps and formed.any() else math.nan,
         start="random" if start_pattern is None else pattern_label(start_pattern),
+        agree=local is not None and local.hearing is not None,
         episode_stats={
             "formed": formed.astype(float).tolist(),
             "steps": steps.tolist(),
@@ -354,7 +361,8 @@ def format_table(r: EvalResult) -> str:
         ("held", "-" if not r.hold_steps else
          f"{pct(r.held_rate)} of the formed held  (mean {pct(r.hold_share)} of the next "
          f"{r.hold_steps} steps formed)"),
-        ("conditions", r.conditions + ("  + estimator" if r.estimator else "")),
+        ("conditions", r.conditions + ("  + estimator" if r.estimator else "")
+         + ("  + slot agreement" if r.agree else "")),
         ("collisions", f"{r.collisions} total, {r.collisions_per_episode:.3f} per episode"),
         ("steps", f"{ratio(r.steps_ratio)} the lower bound (mean {r.mean_steps:.1f})"),
         ("travel", f"{ratio(r.travel_ratio)} the lower bound"),
@@ -424,6 +432,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="start every episode with this pattern just formed (a built-in or a "
                    "file, the same team size): the transition from it, as in a launch's "
                    "sequence (default: random starts)")
+    p.add_argument("--agree", action="store_true",
+                   help="under imperfect sensing the robots tell each other their slots, and "
+                   "a robot that hears a peer claim its own slot goes by the lowest-id "
+                   "robot's assignment (slot agreement; robot processes do not speak it yet)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -490,6 +502,7 @@ def run(args: argparse.Namespace) -> int:
         estimator=args.estimator,
         hold_steps=args.hold_steps,
         start_pattern=args.start_pattern,
+        agree=args.agree,
     )
     if args.json:
         print(json.dumps(res.to_dict(), allow_nan=False))

@@ -27,6 +27,7 @@ from runtime.brain.brain import Brain
 from runtime.core.assignment import TeamAssignment
 from runtime.core.general_row import GeneralRows
 from runtime.core.orca import CHANGE_TOL_MPS
+from runtime.decision.agreement import Heard, SlotAgreement
 from runtime.decision.kinematics import diff_drive_step
 from runtime.decision.observation import observe
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
@@ -99,6 +100,8 @@ class Controller:
         or in a landing at its own pace each robot's), or the team rule's velocities; None
         without a plan (see :attr:`team_velocity`)."""
         self._pace = 0.0  # the steps left the robot's own row reads (its pace)
+        self.agreement = SlotAgreement()
+        """What the robot held and told of its slots (:mod:`runtime.decision.agreement`)."""
         self.reset()
 
     @property
@@ -150,6 +153,7 @@ class Controller:
         self._plan = PlanFrame()
         self._heading = math.nan  # a differential-drive base's, from its own motion (rad)
         self._forget_memory()
+        self.agreement.reset()
         if self._lander is not None:
             self._lander.reset()
 
@@ -165,6 +169,7 @@ class Controller:
         self._pattern_obj = pattern
         self._prev_slots = None
         self._assignment = None
+        self.agreement.reset()  # slots of another pattern
         if self._lander is not None:  # a new pattern lands afresh
             self._lander.reset()
 
@@ -188,6 +193,7 @@ class Controller:
             self._prev_slots = None
             self._assignment = None
             self._vel = np.zeros((1, n, 2))
+            self.agreement.reset()
             self._forget_memory()
             if self._lander is not None:  # another team's centroid
                 self._lander.reset()
@@ -332,6 +338,7 @@ class Controller:
         filter_positions: Array | None = None,
         guard_ref: Array | None = None,
         moment: Array | None = None,
+        heard: Heard | None = None,
     ) -> Decision:
         """Decide robot ``robot_index``'s velocity for this step.
 
@@ -351,7 +358,9 @@ class Controller:
         an update was lost, and this robot's share of the pair's room, for the filter's guard
         (:class:`runtime.decision.local.Seen`); None: as they are now. ``moment``: (n, 2) the
         team of one moment, which the assignment reads (:attr:`runtime.decision.local.Seen.moment`;
-        None: ``positions``).
+        None: ``positions``). ``heard``: the slots the robot has heard its team tell, and the
+        leader's assignment (:mod:`runtime.decision.agreement`; None: it goes by its own; read
+        only with ``step``).
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.
         """
@@ -373,6 +382,9 @@ class Controller:
                 self._heading = math.atan2(dy, dx)
         self._me, self._ref = i, guard_ref  # the raw views, for the landing's centroid
         slots, cx, cy = self._assign(pos, moment)  # 1. assign
+        if heard is not None and step is not None:  # 1b. agree on a conflict it hears
+            slots = self.agreement.agree(i, slots, step, heard)
+            self._prev_slots = slots
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one
         V = self._vel

@@ -23,6 +23,7 @@ import numpy as np
 from runtime.brain.brain import Brain
 from runtime.conditions import Conditions
 from runtime.core.orca import GUARD_REF_COLUMNS
+from runtime.decision.agreement import Hearing
 from runtime.decision.controller import Controller
 from runtime.decision.estimator import PeerTracker
 from runtime.decision.safety import (
@@ -260,13 +261,17 @@ class LocalDecisions:
     ``safety`` None: the speed clamp only; else its margin is widened for ``conditions``.
     ``naive``: a robot that ignores what it knows of its sensing (no tracker for its filter,
     no widened margin, no damped landing): the pipeline as it ran before any of these, for
-    comparison (``benchmarks/conditions.py``'s ``+naive`` brains).
+    comparison (``benchmarks/conditions.py``'s ``+naive`` brains). ``agree``: under imperfect
+    sensing every robot tells its slot and the leader its assignment, heard through
+    :class:`runtime.decision.agreement.Hearing`, and a robot that hears a peer claim its slot
+    goes by the leader's (:mod:`runtime.decision.agreement`; robot processes do not tell
+    their slots yet, so it is off by default: what a launch's robots do).
     """
 
     def __init__(self, brain: Brain, n_envs: int, n_robots: int, conditions: Conditions,
                  *, estimator: bool = False, safety: OrcaParams | None = OrcaParams(),  # noqa: B008
                  seed: int = 0, world: WorldConfig = DEFAULT_WORLD,
-                 naive: bool = False) -> None:
+                 naive: bool = False, agree: bool = False) -> None:
         E, n = n_envs, n_robots
         self.n_envs, self.n_robots = E, n
         self.conditions = conditions
@@ -279,6 +284,8 @@ class LocalDecisions:
         self.controllers = [Controller(brain, world, self.safety, settle,
                                        conditions.diff_turn_rps)
                             for _ in range(E * n)]
+        self.hearing = (Hearing(conditions, E, n, seed)
+                        if agree and not naive and not conditions.sensing_perfect else None)
         self.step = 0
         self._follow: Array | None = None  # (E n, n, 2) each robot's plan of the last step
         self.last_view: Array | None = None
@@ -299,6 +306,10 @@ class LocalDecisions:
         out = np.zeros((E, n, 2))
         slots = np.full((E, n), -1, dtype=np.int64)
         changed = np.zeros((E, n), dtype=bool)
+        hearing = self.hearing
+        if hearing is not None:
+            hearing.hear(self.step)
+        leaders = np.full((E, n), -1, dtype=np.int64)
         for e in range(E):
             if live is not None and not live[e]:
                 continue
@@ -307,12 +318,18 @@ class LocalDecisions:
                 b = e * n + i
                 mine = seen.row(b)
                 d = self.controllers[b].decide(i, mine.plan, C, self.step, mine.vel, mine.now,
-                                               mine.guard_ref, mine.moment)
+                                               mine.guard_ref, mine.moment,
+                                               None if hearing is None else hearing.heard(b))
                 out[e, i] = d.velocity
                 slots[e, i] = d.slot
                 changed[e, i] = d.safety_changed
                 team = self.controllers[b].team_velocity
                 if follow is not None and team is not None:
                     follow[b] = team
+            lead = self.controllers[e * n].previous_slots
+            if lead is not None and len(lead) == n:
+                leaders[e] = lead
+        if hearing is not None:
+            hearing.tell(self.step, slots, leaders)
         self.step += 1
         return out, slots, changed

@@ -190,6 +190,13 @@ class TeamPattern:
             self._restarted = True
             self._world_v = None
 
+    @property
+    def version(self) -> int:
+        """The version of the pattern of the last :meth:`for_team` (0: not from a message:
+        the brain's own pattern or ``--pattern``)."""
+        c = self._cache
+        return c[0].version if c is not None and isinstance(c[0], PatternMsg) else 0
+
     def for_team(self, n: int) -> tuple[Array | None, str]:
         """The (n, 2) target in metres for a team of ``n``, or (None, why there is none)."""
         self._team_n = n

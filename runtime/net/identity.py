@@ -146,8 +146,9 @@ def access_control(swarm: str, n_robots: int, hears_robots: bool = True) -> dict
     robot (Zenoh's rules name fixed key expressions, with no per-subject template),
     and only ``hears_robots`` identities carry them: the world, the operator's tools
     and the router, which take what robots publish. A robot takes nothing from
-    another robot (it decides from the world's poses), so its rules name the roles
-    only: its ``zenoh.json5`` has the same size whatever the team, and a swarm's
+    another robot (it decides from the world's poses) unless it drives a ROS 2 base or
+    agrees on slots (:func:`apply_identity` then builds every robot's rules), so its rules
+    name the roles only: its ``zenoh.json5`` has the same size whatever the team, and a swarm's
     rules grow linearly with the team (three identities of O(n), n of O(1)).
     """
     keys.validate_swarm(swarm)
@@ -189,6 +190,7 @@ def access_control(swarm: str, n_robots: int, hears_robots: bool = True) -> dict
         rules.append(_rule(f"{name}-put", ["put"], [keys.cmd_key(swarm, i),
                                                    keys.status_key(swarm, i),
                                                    keys.view_key(swarm, i),
+                                                   keys.slots_key(swarm, i),
                                                    keys.pose_key(swarm, i)], ingress))
         rules.append(_rule(f"{name}-alive", ["liveliness_token"], [keys.alive_key(swarm, i)],
                            ingress))
@@ -352,8 +354,9 @@ def apply_identity(conf: zenoh.Config, ident: Identity, hears_robots: bool = Fal
     """Put the identity's mutual TLS and access rules into a Zenoh config.
 
     ``hears_robots``: a robot that takes its peers' own poses (``robot --ros2``: no world
-    relays them) enforces every robot's rules, as the world does, built here from the
-    swarm's size rather than read from its file (which names the roles only)."""
+    relays them) or their slots (``robot --agree``) enforces every robot's rules, as the
+    world does, built here from the swarm's size rather than read from its file (which names
+    the roles only): each robot may put on its own keys only."""
     acl = (access_control(ident.swarm, ident.robots, hears_robots=True)
            if hears_robots and is_robot(ident.name) else ident.acl)
     try:

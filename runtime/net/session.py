@@ -394,7 +394,8 @@ def config_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.
             listen = d_listen
     return make_config(args.zenoh_mode, connect, listen, args.zenoh_config,
                        getattr(args, "multicast", None), getattr(args, "zenoh_cfg", None) or (),
-                       ident, hears_robots=bool(getattr(args, "ros2", None)))
+                       ident, hears_robots=bool(getattr(args, "ros2", None)
+                                                or getattr(args, "agree", False)))
 
 
 def open_session_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.Session:

@@ -55,6 +55,10 @@ class RobotConfig:
     """Seeds the simulated sensing (with the robot id)."""
     estimator: bool = False
     """Track peers (``runtime.decision.estimator``) and decide on the estimates."""
+    agree: bool = False
+    """Under imperfect sensing, tell the team the slot it goes by each step and hear theirs
+    (:mod:`runtime.decision.agreement`): a robot that hears a peer claim its slot goes by the
+    leader's assignment."""
     view_every: int = VIEW_EVERY
     """Under imperfect sensing, publish the team as perceived (a
     :class:`runtime.wire.messages.View`) for one decision every this many steps (0: never)."""
@@ -153,6 +157,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cg.add_argument("--estimator", action="store_true",
                     help="track each peer (alpha-beta filter, latency compensation) and decide "
                     "on the estimates")
+    cg.add_argument("--agree", action="store_true",
+                    help="under imperfect --conditions, tell the team the slot this robot goes "
+                    "by each step (robot/<id>/slots; the lowest-id robot its whole assignment) "
+                    "and hear theirs; on hearing a peer claim its own slot it goes by the "
+                    "lowest-id robot's assignment (slot agreement: shorter transitions under "
+                    "noise)")
     cg.add_argument("--view-every", type=int, default=VIEW_EVERY, metavar="N",
                     help="under imperfect --conditions, publish the team as this robot perceived "
                     "it (robot/<id>/view) for one decision every N steps, so the log holds "
@@ -282,6 +292,7 @@ def config_from_args(
         debug_delay_ms=args.debug_delay_ms,
         conditions=conditions,
         estimator=args.estimator,
+        agree=args.agree,
         sensing_seed=args.sensing_seed,
         view_every=args.view_every,
         ros2=ros2,

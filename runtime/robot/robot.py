@@ -48,6 +48,10 @@ with ``swap_request_id``, ``swap_accepted``, ``swap_reason`` and the old and
 new brain ids, published at once. A refused brain leaves the old one running.
 A manifest ``{"rule": "rule:assign"}`` with no ONNX bytes swaps in a rule brain.
 
+Slots: with ``--agree`` under imperfect sensing, each step the slot the robot goes by (the
+lowest-id robot its whole assignment) on its slots key, just before the step's command, and
+the team's heard (:mod:`runtime.robot.slot_talk`, :mod:`runtime.decision.agreement`).
+
 View: under imperfect sensing (``--conditions`` other than perfect), once every
 ``--view-every`` steps (default 10; 0: never) the team as the robot perceived it for that
 step's decision (:class:`runtime.wire.messages.View`: its tracker's estimate of where each
@@ -110,6 +114,7 @@ from runtime.net.session import ZenohSetupError, direct, open_session_from_args
 from runtime.robot.cli import FALLBACK_RULE, RobotConfig, add_arguments, config_from_args
 from runtime.robot.in_flight import InFlight
 from runtime.robot.inbox import PoseInbox, Step
+from runtime.robot.slot_talk import SlotTalk
 from runtime.robot.status import RobotStats
 from runtime.robot.swap_worker import SwapReply, SwapWorker
 from runtime.types import Array
@@ -117,9 +122,11 @@ from runtime.wire import keys
 from runtime.wire.messages import (
     Command,
     MessageError,
+    Slots,
     View,
     decode_pattern,
     encode_command,
+    encode_slots,
     encode_status,
     encode_view,
 )
@@ -228,6 +235,12 @@ class Robot:
         self._view_pub: zenoh.Publisher | None = None  # under imperfect sensing (--view-every)
         self._view_step = -math.inf  # the step of the last view staged
         self._view: View | None = None  # staged by the decision, sent after its command
+        self.slot_talk = (SlotTalk(self.id, cfg.conditions, (cfg.sensing_seed, self.id),
+                                   self._drop)
+                          if cfg.agree and not cfg.conditions.sensing_perfect else None)
+        """--agree under imperfect sensing: what it tells and hears of its team's slots."""
+        self._slots_pub: zenoh.Publisher | None = None
+        self._slots: Slots | None = None  # staged by the decision, sent before its command
 
     # ------------------------------------------------------------- lifecycle
 
@@ -244,6 +257,10 @@ class Robot:
             self._view_pub = z.enter_context(
                 s.declare_publisher(keys.view_key(sw, self.id), express=True)
             )
+        if self.slot_talk is not None:  # before the poses: a step's decision hears them
+            self._slots_pub = z.enter_context(
+                s.declare_publisher(keys.slots_key(sw, self.id), express=True))
+            z.enter_context(s.declare_subscriber(keys.all_slots(sw), direct(self._on_slots)))
         z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
         # per-robot poses until the first all-poses message (then undeclared). In realtime
         # its own only: a world without all-poses messages shows itself there, and every
@@ -357,6 +374,13 @@ class Robot:
         finally:
             self._loop_lock.release()
 
+    def _on_slots(self, sample: zenoh.Sample) -> None:
+        if self.slot_talk is not None:
+            try:
+                self.slot_talk.take(str(sample.key_expr), sample.payload.to_bytes())
+            except Exception as e:  # whatever arrives, never a traceback on Zenoh's thread
+                self._drop("slots", f"{type(e).__name__}: {e}")
+
     def _on_pattern(self, sample: zenoh.Sample) -> None:
         self._take_pattern(sample.payload.to_bytes())
 
@@ -462,10 +486,18 @@ class Robot:
                         else self._perceive(step, positions))
                 if self._view_pub is not None and self._perception is not None:
                     self._stage_view(step, seen)
+                talk, version = self.slot_talk, self.pattern.version
+                heard = (None if talk is None
+                         else talk.heard(step.step, step.ids, me, version))
                 d = self.controller.decide(me, seen.plan, pattern, step.step, seen.vel,
-                                           seen.now, seen.guard_ref, seen.moment)
+                                           seen.now, seen.guard_ref, seen.moment, heard)
                 if d.error == ERR_NONFINITE:
                     d = self._nonfinite(step, pattern, d, seen)
+                if talk is not None:
+                    talk.adopted_steps += self.controller.agreement.adopted
+                    self._slots = talk.told(step.step, version, step.ids, me,
+                                            None if d.slot < 0
+                                            else self.controller.previous_slots)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -512,6 +544,15 @@ class Robot:
         except MessageError as e:
             self.stats.error(f"view: {e}")
 
+    def _publish_slots(self) -> None:
+        msg, self._slots = self._slots, None
+        if msg is None or self._slots_pub is None:
+            return
+        try:
+            self._slots_pub.put(encode_slots(msg))
+        except MessageError as e:
+            self.stats.error(f"slots: {e}")
+
     def _publish_view(self) -> None:
         view, self._view = self._view, None
         if view is None or self._view_pub is None:
@@ -548,6 +589,8 @@ class Robot:
         return d if fd.error else fd
 
     def _send(self, step: int, d: Decision) -> None:
+        if self._slots is not None:  # before the command: the world steps on commands
+            self._publish_slots()
         self._publish_cmd(step, d)
         if self._view is not None:
             self._publish_view()
@@ -666,6 +709,9 @@ def run(args: argparse.Namespace) -> int:
             errors=st.errors,
             backlog_skipped=robot.backlog_skipped,
             heavy_modules=",".join(heavy) if heavy else "none",
+            **({} if robot.slot_talk is None else {
+                "slots_heard": robot.slot_talk.heard_messages,
+                "leader_steps": robot.slot_talk.adopted_steps}),
         )
         return code
     except Exception as e:  # unexpected: one line, no traceback

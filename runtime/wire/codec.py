@@ -35,6 +35,7 @@ class Tag(IntEnum):
     BRAIN = 5
     POSES = 6
     VIEW = 7
+    SLOTS = 8
 
 
 VERSION: Final = 1

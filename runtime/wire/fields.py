@@ -44,14 +44,18 @@ __all__ = [
     "MAX_PATTERN_POINTS",
     "MAX_POSES_ROBOTS",
     "MAX_REQUEST_ID_BYTES",
+    "MAX_SLOTS_ROBOTS",
     "MAX_STATUS_BYTES",
     "MAX_TARGET_ROBOTS",
     "MAX_VIEW_COORD_M",
     "MAX_VIEW_ROBOTS",
+    "NO_SLOT",
     "PATTERN",
     "POSE",
     "POSES_HEAD",
     "POSES_ROW",
+    "SLOTS",
+    "SLOTS_HEAD",
     "STATUS",
     "UINT_MAX",
     "VIEW",
@@ -76,6 +80,10 @@ MAX_POSES_ROBOTS: Final = 4096
 """Robots one pose batch may carry: 40x the largest team the design budgets (100)."""
 MAX_VIEW_ROBOTS: Final = MAX_POSES_ROBOTS
 """Team members one robot's view may carry: as many as a pose batch."""
+MAX_SLOTS_ROBOTS: Final = 0xFFFF
+"""Team members a leader's assignment may carry (its slots go as uint16 on the wire)."""
+NO_SLOT: Final = U32
+"""A ``slot`` of a slots message that says the robot holds none (it holds still)."""
 MAX_VIEW_COORD_M: Final = 1e6
 """A perceived position farther from the origin is refused: as far as a robot takes a pose
 (``runtime.robot.inbox.MAX_COORD_M``)."""
@@ -328,3 +336,25 @@ VIEW_ROW: Final = FieldTable("view", "", (
 ), header=False)
 """One team member of a view: its id, its perceived position, the age of its last sensed
 update; ids strictly ascending, the sender's own among them."""
+
+SLOTS: Final = FieldTable("slots", "RobotSlots", (
+    Field("robot_id", "u32", 1),
+    Field("step", "u64", 2),
+    Field("pattern_version", "u64", 3),
+    Field("slot", "u32", 4),
+    Field("ids", "u32", 5, repeated=True, max_items=MAX_SLOTS_ROBOTS),
+    Field("assignment", "u32", 6, repeated=True, max_items=MAX_SLOTS_ROBOTS),
+))
+"""Robot -> robots: the slot a robot goes by at a step, and the leader's whole assignment
+(:class:`runtime.wire.slots.Slots`); on the wire a fixed part (:data:`SLOTS_HEAD`), then
+the team's ids as uint32 and the assignment as uint16, in a log two repeated fields."""
+
+SLOTS_HEAD: Final = FieldTable("slots", "", (
+    Field("robot_id", "u32"),
+    Field("step", "u64"),
+    Field("pattern_version", "u64"),
+    Field("slot", "u32"),
+    Field("n", "u32", hi=MAX_SLOTS_ROBOTS),
+))
+"""The fixed part of a slots message on the wire; n ids and n slots follow (n = 0: a
+claim alone)."""

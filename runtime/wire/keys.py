@@ -7,6 +7,7 @@ Layout (``<swarm>`` is one name of ``[A-Za-z0-9_-]+``, ``<id>`` a robot id >= 0)
     patternrl/<swarm>/robot/<id>/cmd      robot -> world     commanded velocity, step, brain id
     patternrl/<swarm>/robot/<id>/status   robot -> anyone    brain id, latency, errors, swaps
     patternrl/<swarm>/robot/<id>/view     robot -> anyone    the team as the robot perceived it
+    patternrl/<swarm>/robot/<id>/slots    robot -> robots    its slot; the leader its assignment
     patternrl/<swarm>/pattern             world -> all       target pattern, version (phases)
     patternrl/<swarm>/operator/pattern    operator -> all    a target between the world's
     patternrl/<swarm>/brain               operator -> robots  a new brain to swap in
@@ -29,19 +30,21 @@ POSE: Final = "pose"
 CMD: Final = "cmd"
 STATUS: Final = "status"
 VIEW: Final = "view"
-ROBOT_CHANNELS: Final = (POSE, CMD, STATUS, VIEW)
+SLOTS: Final = "slots"
+ROBOT_CHANNELS: Final = (POSE, CMD, STATUS, VIEW, SLOTS)
 PATTERN: Final = "pattern"
 POSES: Final = "poses"
 BRAIN: Final = "brain"
 ALIVE: Final = "alive"
 OPERATOR_PATTERN: Final = "operator_pattern"
-KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES, OPERATOR_PATTERN, VIEW)
+KINDS: Final = (POSE, CMD, STATUS, PATTERN, BRAIN, ALIVE, POSES, OPERATOR_PATTERN, VIEW,
+                 SLOTS)
 """Every kind of key, as :attr:`Key.kind` names it."""
 
 _SWARM_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ALIVE_ID_RE: Final = re.compile(r"[A-Za-z0-9_-]+")
 _ANY_KEY_RE: Final = re.compile(
-    r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status|view)"
+    r"patternrl/([A-Za-z0-9_-]+)/(?:robot/(0|[1-9][0-9]*)/(pose|cmd|status|view|slots)"
     r"|(pattern|brain|poses|operator/pattern)|alive/([A-Za-z0-9_-]+))"
 )
 _ROBOT_ID_RE: Final = re.compile(r"0|[1-9][0-9]*")
@@ -121,6 +124,18 @@ def all_views(swarm: str) -> str:
     return _all_robots(swarm, VIEW)
 
 
+def slots_key(swarm: str, robot_id: int) -> str:
+    """What one robot tells its team of the slots it goes by
+    (:class:`runtime.wire.messages.Slots`, :mod:`runtime.decision.agreement`), published by
+    that robot each step it decides under imperfect sensing with ``--agree``."""
+    return _robot_key(swarm, robot_id, SLOTS)
+
+
+def all_slots(swarm: str) -> str:
+    """What every robot of the swarm tells of its slots."""
+    return _all_robots(swarm, SLOTS)
+
+
 def pattern_key(swarm: str) -> str:
     """Current target pattern of the swarm."""
     return f"{PREFIX}/{validate_swarm(swarm)}/pattern"
@@ -152,7 +167,8 @@ def all_alive(swarm: str) -> str:
 
 
 def parse_robot_id(key: str) -> int | None:
-    """The robot id in a robot key (pose, cmd, status, view or an int alive id), else None.
+    """The robot id in a robot key (pose, cmd, status, view, slots or an int alive id), else
+    None.
 
     ``None`` for any key not built by this module for one robot: another prefix, an
     invalid swarm name, a wildcard, a non-decimal or zero-padded id, the world's alive key.
@@ -168,7 +184,7 @@ class Key(NamedTuple):
     kind: str
     """One of :data:`KINDS`."""
     robot_id: int | None
-    """The robot a pose, cmd, status, view or alive key belongs to; None otherwise (and for
+    """The robot a pose, cmd, status, view, slots or alive key belongs to; None otherwise (and for
     the world's alive key)."""
     alive_id: str | None = None
     """The raw id of an alive key (``"world"`` or a robot id), else None."""

@@ -20,6 +20,9 @@ but :data:`COMMAND_VERSION` for a command; decoders also read older ones)::
     View     <BB I Q I> + n x <I d d I>           tag, version, robot_id, step, n; per team
                                                   member id, x, y, age_steps: the team as the
                                                   robot perceived it (runtime/wire/view.py)
+    Slots    <BB I Q Q I I> + n x <I> + n x <H>   tag, version, robot_id, step, pattern_version,
+                                                  slot, n; the leader's team ids and its
+                                                  assignment (runtime/wire/slots.py)
 
 Every decoder bounds a message before it uses it: sizes first (a length or count field is
 checked against its documented maximum, ``MAX_*`` below, and against the bytes that are
@@ -80,6 +83,14 @@ from runtime.wire.fields import (
     Field,
 )
 from runtime.wire.pose_batch import PoseBatch, decode_poses, encode_poses
+from runtime.wire.slots import (
+    MAX_SLOTS_ROBOTS,
+    NO_SLOT,
+    Slots,
+    check_slots,
+    decode_slots,
+    encode_slots,
+)
 from runtime.wire.view import MAX_VIEW_ROBOTS, View, check_view, decode_view, encode_view
 from runtime.world_config import MAX_PATTERN_COORD_M
 
@@ -99,9 +110,11 @@ __all__ = [
     "MAX_PATTERN_POINTS",
     "MAX_POSES_ROBOTS",
     "MAX_REQUEST_ID_BYTES",
+    "MAX_SLOTS_ROBOTS",
     "MAX_STATUS_BYTES",
     "MAX_TARGET_ROBOTS",
     "MAX_VIEW_ROBOTS",
+    "NO_SLOT",
     "POSE_DTYPE",
     "VERSION",
     "BrainMsg",
@@ -112,9 +125,11 @@ __all__ = [
     "PatternMsg",
     "Pose",
     "PoseBatch",
+    "Slots",
     "Status",
     "Tag",
     "View",
+    "check_slots",
     "check_view",
     "command_dtype",
     "decode",
@@ -123,6 +138,7 @@ __all__ = [
     "decode_pattern",
     "decode_pose",
     "decode_poses",
+    "decode_slots",
     "decode_status",
     "decode_view",
     "encode",
@@ -131,6 +147,7 @@ __all__ = [
     "encode_pattern",
     "encode_pose",
     "encode_poses",
+    "encode_slots",
     "encode_status",
     "encode_view",
 ]
@@ -568,7 +585,7 @@ def decode_brain(payload: Buffer) -> BrainMsg:
 
 # -- any message ----------------------------------------------------------------------------
 
-Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg | PoseBatch | View
+Message: TypeAlias = Pose | Command | Status | PatternMsg | BrainMsg | PoseBatch | View | Slots
 
 _ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
     Pose: encode_pose,
@@ -578,6 +595,7 @@ _ENCODERS: Final[dict[type, Callable[[Any], bytes]]] = {
     BrainMsg: encode_brain,
     PoseBatch: encode_poses,
     View: encode_view,
+    Slots: encode_slots,
 }
 
 _DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
@@ -588,6 +606,7 @@ _DECODERS: Final[dict[int, Callable[[Buffer], Message]]] = {
     Tag.BRAIN: decode_brain,
     Tag.POSES: decode_poses,
     Tag.VIEW: decode_view,
+    Tag.SLOTS: decode_slots,
 }
 
 

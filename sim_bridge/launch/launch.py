@@ -183,6 +183,8 @@ class Robots:
                 cmd += ["--conditions", cond, "--sensing-seed", str(args.seed)]
             if getattr(args, "estimator", False):
                 cmd += ["--estimator"]
+            if getattr(args, "agree", False) and cond != "perfect":
+                cmd += ["--agree"]
             if getattr(args, "ros2", False):  # the robot drives ROS 2 base robot_<id>
                 cmd += ["--ros2", f"robot_{rid}"]
             elif args.mode == "realtime":

@@ -28,6 +28,8 @@ kind                messages  bytes      a normal swarm (measured or by design)
                                          second at 213 steps/s), 18 + 24 n bytes
                                          (2.4 KB at 100 robots); one a step at 10 Hz
                                          fits, four of the largest (4096 robots) too
+``slots``           1000      256 KiB    one a step (``--agree``), like ``cmd``; 30
+                                         bytes, the leader's 30 + 6 n (630 at 100)
 ``pattern``,        50        4 MiB      about one a second and one per phase or
 ``operator_pattern``                     resize; <= 64 KiB (4096 points)
 ``brain``           10        130 MiB    one per swap; a largest brain (64 MiB
@@ -35,7 +37,8 @@ kind                messages  bytes      a normal swarm (measured or by design)
 anything else       100       64 KiB     (nothing of ours)
 ==================  ========  =========  ==========================================
 
-So a robot that floods all three of its keys costs the log at most 1 MiB a second.
+So a robot that floods its cmd, status, view and slots keys costs the log at most 1.25 MiB
+a second.
 At most :data:`MAX_KEYS` keys have their own bucket; keys beyond share one.
 """
 
@@ -68,6 +71,7 @@ BUDGETS: Final[dict[str, Budget]] = {
     keys.POSES: Budget(1000, 8 * _MIB),
     keys.STATUS: Budget(20, 256 * _KIB),
     keys.VIEW: Budget(50, 512 * _KIB),
+    keys.SLOTS: Budget(1000, 256 * _KIB),
     keys.PATTERN: Budget(50, 4 * _MIB),
     keys.OPERATOR_PATTERN: Budget(50, 4 * _MIB),
     keys.BRAIN: Budget(10, 130 * _MIB),

@@ -11,6 +11,7 @@ topic                       schema                           what
 ``K/robot/<id>/cmd``        ``patternrl.RobotCommand``       robot -> world
 ``K/robot/<id>/status``     ``patternrl.RobotStatus``        robot health
 ``K/robot/<id>/view``       ``patternrl.RobotView``          the team it perceived
+``K/robot/<id>/slots``      ``patternrl.RobotSlots``         the slot it goes by
 ``K/pattern``               ``patternrl.Pattern``            target pattern (the world's)
 ``K/operator/pattern``      ``patternrl.Pattern``            an operator's target
 ``K/brain``                 ``patternrl.BrainSwap``          brain swaps
@@ -38,6 +39,10 @@ recorded step with a transform per robot; ``/robot/<id>/pose`` the same position
 what is not one of the project's messages: a sample on a foreign key (whole), a
 payload that did not decode (``reason``, its first bytes) and a payload refused
 for its size (``reason``, no bytes; see :data:`MAX_PAYLOAD_BYTES`).
+
+``K/robot/<id>/slots`` is there only for robots that agreed on their slots (``robot
+--agree`` under imperfect sensing, :mod:`runtime.decision.agreement`): the slot each went by
+at each step it decided, and its leader's whole assignment.
 
 ``K/robot/<id>/view`` is there only for robots that ran under imperfect sensing
 (``robot --conditions``, every ``--view-every`` steps): where the robot believed each
@@ -134,6 +139,7 @@ PB_SCHEMAS: Final = {
     keys.OPERATOR_PATTERN: pb.PATTERN,
     keys.BRAIN: pb.BRAIN_SWAP,
     keys.VIEW: pb.ROBOT_VIEW,
+    keys.SLOTS: pb.ROBOT_SLOTS,
 }
 """Key kind -> protobuf schema of the channel of keys of that kind."""
 
@@ -145,6 +151,7 @@ WIRE_SCHEMAS: Final = {
     keys.OPERATOR_PATTERN: "patternrl.Pattern",
     keys.BRAIN: "patternrl.Brain",
     keys.VIEW: "patternrl.View",
+    keys.SLOTS: "patternrl.Slots",
 }
 """Key kind -> schema name of the wire message on keys of that kind (old logs)."""
 

@@ -45,6 +45,7 @@ from runtime.wire.messages import (
     decode_pattern,
     decode_pose,
     decode_poses,
+    decode_slots,
     decode_status,
     decode_view,
     encode_pose,
@@ -405,6 +406,9 @@ class Recorder:
         if kind == keys.VIEW:
             v = decode_view(payload)
             return pb.view_pb(v), v.step
+        if kind == keys.SLOTS:
+            sl = decode_slots(payload)
+            return pb.slots_pb(sl), sl.step
         if kind == keys.POSES:  # only a malformed one comes here (see _expand_poses)
             decode_poses(payload)
         return None, None

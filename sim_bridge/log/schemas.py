@@ -22,6 +22,9 @@ built from the field tables of :mod:`runtime.wire.fields` (names, types, field n
     RobotView     1 robot_id uint32, 2 step uint64, 3 ids repeated uint32,
                   4 x repeated double, 5 y repeated double, 6 age_steps repeated uint32
                   (the team as robot robot_id perceived it for step; metres, steps)
+    RobotSlots    1 robot_id uint32, 2 step uint64, 3 pattern_version uint64, 4 slot uint32,
+                  5 ids repeated uint32, 6 assignment repeated uint32 (the slot robot_id goes
+                  by, 4294967295: none; the leader's whole assignment, else empty)
     RawSample     1 key string, 2 size uint64, 3 reason string, 4 payload bytes
 
 Fixed-width fields make a pose or command the recorder writes one fixed layout
@@ -46,7 +49,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError
 
-from runtime.wire.fields import BRAIN, COMMAND, POSE, STATUS, VIEW, Field, FieldTable
+from runtime.wire.fields import BRAIN, COMMAND, POSE, SLOTS, STATUS, VIEW, Field, FieldTable
 from runtime.wire.fields import PATTERN as PATTERN_FIELDS
 from runtime.wire.messages import (
     COMMAND_VERSION,
@@ -55,13 +58,16 @@ from runtime.wire.messages import (
     MessageError,
     PatternMsg,
     Pose,
+    Slots,
     Status,
     View,
+    check_slots,
     check_view,
     encode_brain,
     encode_command,
     encode_pattern,
     encode_pose,
+    encode_slots,
     encode_status,
     encode_view,
 )
@@ -78,7 +84,8 @@ RAW_SAMPLE_FIELDS: Final = FieldTable("raw sample", "RawSample", (
     Field("payload", "bytes", 4),
 ))
 """A Zenoh payload kept as it came (too large, or not a message): the log's own message."""
-TABLES: Final = (POSE, COMMAND, STATUS, PATTERN_FIELDS, BRAIN, RAW_SAMPLE_FIELDS, VIEW)
+TABLES: Final = (POSE, COMMAND, STATUS, PATTERN_FIELDS, BRAIN, RAW_SAMPLE_FIELDS, VIEW,
+                 SLOTS)
 """The field table of each of our messages, in the order of ``patternrl/log.proto``."""
 
 
@@ -137,6 +144,7 @@ PATTERN: Final = "patternrl.Pattern"
 BRAIN_SWAP: Final = "patternrl.BrainSwap"
 RAW_SAMPLE: Final = "patternrl.RawSample"
 ROBOT_VIEW: Final = "patternrl.RobotView"
+ROBOT_SLOTS: Final = "patternrl.RobotSlots"
 POSE_IN_FRAME: Final = "foxglove.PoseInFrame"
 FRAME_TRANSFORMS: Final = "foxglove.FrameTransforms"
 
@@ -270,6 +278,20 @@ def view_of(m: Any) -> View:
                            np.asarray(m.age_steps, np.int64)))
 
 
+def slots_pb(v: Slots) -> bytes:
+    m = message_class(ROBOT_SLOTS)(robot_id=v.robot_id, step=v.step,
+                                   pattern_version=v.pattern_version, slot=v.slot,
+                                   ids=v.ids.tolist(), assignment=v.assignment.tolist())
+    return bytes(m.SerializeToString())
+
+
+def slots_of(m: Any) -> Slots:
+    """A parsed ``patternrl.RobotSlots`` as a :class:`~runtime.wire.messages.Slots`, checked
+    as the wire's decoder checks one (:class:`~runtime.wire.messages.MessageError` if not)."""
+    return check_slots(Slots(m.robot_id, m.step, m.pattern_version, m.slot,
+                             np.asarray(m.ids, np.int64), np.asarray(m.assignment, np.int64)))
+
+
 def raw_sample_pb(key: str, size: int, reason: str, payload: bytes) -> bytes:
     m = message_class(RAW_SAMPLE)(key=key, size=size, reason=reason, payload=payload)
     return bytes(m.SerializeToString())
@@ -311,6 +333,8 @@ def to_wire(name: str, data: bytes) -> bytes:
                                      tuple(m.target_robots)))
     if name == ROBOT_VIEW:
         return encode_view(view_of(m))
+    if name == ROBOT_SLOTS:
+        return encode_slots(slots_of(m))
     if name == RAW_SAMPLE:
         return bytes(m.payload)
     raise ValueError(f"{name} is not a Zenoh message")

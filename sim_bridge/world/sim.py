@@ -123,6 +123,10 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                         "sensing fields (default perfect)")
     p.add_argument("--estimator", action="store_true",
                    help="launch: every robot tracks its peers and decides on the estimates")
+    p.add_argument("--agree", action="store_true",
+                   help="launch, under imperfect --conditions: every robot tells the others "
+                        "the slot it goes by each step and goes by the lowest-id robot's "
+                        "assignment when it hears a peer claim its own (slot agreement)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--ros2", action="store_true",
                    help="the robots as a ROS 2 fleet: /robot_<i>/odom out, /robot_<i>/cmd_vel "

@@ -19,6 +19,7 @@ from patternrl.cli import main as cli
 from runtime.decision.formation import assign_slots, slot_distances
 from runtime.wire import keys
 from runtime.world_config import DEFAULT_WORLD
+from sim_bridge.log import schemas as pb
 from sim_bridge.log.layout import SCENE_TOPIC
 from sim_bridge.log.reader import read_log
 
@@ -144,3 +145,44 @@ def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
     assert sorted(est["per_robot"]) == [str(i) for i in range(n)]
     assert cli(["replay", str(log)]) == 0
     assert "estimation error (m)" in capsys.readouterr().out
+
+
+def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
+    procs: Any, tmp_path: Path
+) -> None:
+    """``launch --agree`` under the realistic preset (mutual TLS, the robots' sessions
+    enforcing every robot's rules): every robot tells its slot each step it decides on its own
+    key, the leader (robot 0) its whole assignment over the team, every robot hears its
+    peers, and the team forms circle then cross without a collision."""
+    log = tmp_path / "agree.mcap"
+    launch = procs.start(
+        "launch", "launch", "--robots", "6", "--patterns", "circle,cross", "--seed", "5",
+        "--conditions", COND, "--estimator", "--agree", "--step-deadline-ms", "5000",
+        "--record", str(log), "--no-plot", "--json",
+        "--swarm", f"e2e-agree-{os.getpid()}")
+    assert launch.wait(timeout=150) == 0, procs.log("launch")
+    result = json.loads(procs.log("launch").strip().splitlines()[-1])
+    assert [p["formed"] for p in result["phases"]] == [True, True], result["phases"]
+    assert all(p["collisions"] == 0 for p in result["phases"])
+
+    per_robot: dict[int, int] = {}
+    assignments = []
+    with open(log, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            k = keys.parse_key(channel.topic)
+            if k is None or k.kind != keys.SLOTS:
+                continue
+            assert k.robot_id is not None
+            per_robot[k.robot_id] = per_robot.get(k.robot_id, 0) + 1
+            if k.robot_id == 0:
+                m = pb.parse(pb.ROBOT_SLOTS, message.data)
+                assignments.append((list(m.ids), sorted(m.assignment)))
+    steps = result["steps"]
+    assert sorted(per_robot) == list(range(6))
+    assert all(c >= steps // 2 for c in per_robot.values()), (per_robot, steps)
+    assert assignments and all(ids == list(range(6)) and a == list(range(6))
+                               for ids, a in assignments if ids)
+    heard = [int(line.split("slots_heard=")[1].split()[0].rstrip("]"))
+             for line in Path(result["robots_log"]).read_text().splitlines()
+             if "slots_heard=" in line]
+    assert len(heard) == 6 and min(heard) > 0, heard

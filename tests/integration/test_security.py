@@ -113,6 +113,34 @@ def test_the_operator_puts_its_patterns_on_its_own_key_never_on_the_worlds(
         assert keys.pattern_key(SWARM) not in seen.keys(), seen.keys()
 
 
+def test_a_robot_that_agrees_hears_robot_1s_own_slots_never_its_forged_ones(
+        swarm_keys: Path) -> None:
+    """``robot --agree`` takes its peers' slots: its session enforces every robot's rules
+    (:func:`runtime.net.identity.apply_identity`), so robot 1's certificate reaches it on
+    robot 1's slots key and never on robot 2's. With the robot's own file's rules (the roles
+    only) it would hear no robot at all."""
+    from runtime.wire.messages import Slots, encode_slots
+
+    ep = f"tls/127.0.0.1:{free_port()}"
+    ident = load_identity(swarm_keys / "robot-0")
+    with open_config(make_config("peer", [], [ep], identity=ident, hears_robots=True)) as r0:
+        seen = Seen(r0, SWARM)
+        try:
+            with session(swarm_keys, "robot-1", [ep], ["tls/127.0.0.1:0"]) as attacker:
+                own = encode_slots(Slots(1, 5, 1, 0))
+                forged = encode_slots(Slots(2, 5, 1, 1))
+
+                def heard() -> bool:
+                    attacker.put(keys.slots_key(SWARM, 2), forged)  # refused each time
+                    attacker.put(keys.slots_key(SWARM, 1), own)  # after it: the fence
+                    return seen.has(keys.slots_key(SWARM, 1), own)
+
+                wait_for(heard, 30, "robot 0 to hear robot 1's slots", poll=0.05)
+                assert keys.slots_key(SWARM, 2) not in seen.keys(), seen.keys()
+        finally:
+            seen.close()
+
+
 def test_on_open_tcp_the_same_forgeries_arrive() -> None:
     ep = f"tcp/127.0.0.1:{free_port()}"
     with session(None, None, [], [ep]) as w, session(None, None, [ep], []) as attacker:

@@ -19,7 +19,8 @@ def forged_keys(swarm: str) -> tuple[str, ...]:
     from runtime.wire import keys
 
     return (keys.cmd_key(swarm, 2), keys.status_key(swarm, 2), keys.pose_key(swarm, 2),
-            keys.brain_key(swarm), keys.pattern_key(swarm), keys.operator_pattern_key(swarm))
+            keys.slots_key(swarm, 2), keys.brain_key(swarm), keys.pattern_key(swarm),
+            keys.operator_pattern_key(swarm))
 
 
 def forge_and_fence(attacker: Any, seen: Seen, swarm: str, token_ids: tuple[int, ...]

@@ -18,6 +18,7 @@ def test_round_trip_of_robot_keys(swarm: str, robot_id: int) -> None:
         (keys.cmd_key, keys.CMD),
         (keys.status_key, keys.STATUS),
         (keys.view_key, keys.VIEW),
+        (keys.slots_key, keys.SLOTS),
     ):
         key = build(swarm, robot_id)
         assert keys.parse_key(key) == Key(swarm, kind, robot_id)
@@ -48,6 +49,7 @@ def test_every_kind_is_parsed() -> None:
         keys.poses_key("s"),
         keys.operator_pattern_key("s"),
         keys.view_key("s", 1),
+        keys.slots_key("s", 1),
     ]
     parsed = [keys.parse_key(k) for k in built]
     assert [k.kind for k in parsed if k is not None] == list(keys.KINDS)
@@ -65,6 +67,7 @@ def test_every_kind_is_parsed() -> None:
         keys.alive_key("a", keys.WORLD_ID),
         keys.operator_pattern_key("a"),
         keys.view_key("a", 4),
+        keys.slots_key("a", 6),
     ],
 )
 def test_with_swarm_moves_every_key_to_the_other_swarm(key: str) -> None:
@@ -84,6 +87,7 @@ def test_with_swarm_moves_every_key_to_the_other_swarm(key: str) -> None:
         keys.all_cmds("s"),
         keys.all_status("s"),
         keys.all_views("s"),
+        keys.all_slots("s"),
         keys.all_alive("s"),
         keys.swarm_root("s"),
         "patternrl/*/pattern",
