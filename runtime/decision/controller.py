@@ -100,6 +100,7 @@ class Controller:
         or in a landing at its own pace each robot's), or the team rule's velocities; None
         without a plan (see :attr:`team_velocity`)."""
         self._pace = 0.0  # the steps left the robot's own row reads (its pace)
+        self._landing_targets: Array | None = None  # the landing's targets, (n, 2), or None
         self.agreement = SlotAgreement()
         """What the robot held and told of its slots (:mod:`runtime.decision.agreement`)."""
         self.reset()
@@ -234,6 +235,7 @@ class Controller:
             tx, ty, k = self._plan.solve_floats(pos, pts, spec.travel_weight, self.world)
             if self._lander is not None and self._lander.settle.lands_in_centroid(k):
                 target, kk = self._landing_plan(pos, pts)
+                self._landing_targets = target
                 k = float(kk)
                 each = landing_steps(target, pos, kk, self._lander.settle, self.world)
                 self._team_plan = (target, pos, each)
@@ -256,7 +258,9 @@ class Controller:
         :mod:`runtime.decision.settle`); the filter and ``V`` otherwise."""
         lander = self._lander
         if (lander is None or steps_left is None
-                or not lander.settle.filters_on_plan(steps_left)):
+                or not lander.settle.filters_on_plan(steps_left)
+                or self._contested(self._me, self._frames[0] if self._ref is None
+                                   else self._ref[:, 0:2])):
             return self._filter, V
         way = self._to_slot
         flt = (self._landed_filter if self._landed_filter is not None and way is not None
@@ -265,6 +269,22 @@ class Controller:
         if plan is None or plan.shape != V.shape[1:] or not np.isfinite(plan).all():
             return flt, V
         return flt, np.ascontiguousarray(plan[None], dtype=np.float64)
+
+    def _contested(self, i: int, pos: Array) -> bool:
+        """Whether, in a landing, a peer as sensed (``pos``, (n, 2): the guard's raw views,
+        not carried along the plan) lies nearer robot i's target than its own: robots that
+        disagree on their slots, each sure the other lands elsewhere. The landing's filter,
+        which takes every peer to follow this robot's plan and keeps half the guard, let two
+        such robots touch."""
+        t = self._landing_targets
+        if t is None or t.shape != pos.shape:
+            return False
+        mine = t[i]
+        to_mine = np.hypot(pos[:, 0] - mine[0], pos[:, 1] - mine[1])
+        to_own = np.hypot(pos[:, 0] - t[:, 0], pos[:, 1] - t[:, 1])
+        near = to_mine < to_own
+        near[i] = False
+        return bool(near.any())
 
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
         """Under noise or latency, the last steps of a plan: the team's targets (n, 2) in the
@@ -299,6 +319,7 @@ class Controller:
             way = None
             if self._lander is not None and self._lander.settle.lands_in_centroid(k[0]):
                 target, kk = self._landing_plan(P[0], c[slots])  # landing under noise
+                self._landing_targets = target
                 each = landing_steps(target, P[0], kk, self._lander.settle, self.world)
                 out, k = pace_velocity(target, P[0], each, self.world)[None], kk[None]
                 way = math.hypot(*(target[i] - P[0, i]).tolist())
@@ -366,6 +387,7 @@ class Controller:
         """
         t0 = time.perf_counter_ns()
         self._team_plan = None
+        self._landing_targets = None
         self._to_slot = None
         pos = np.array(positions, dtype=np.float64)  # a copy: the history is ours
         if pattern is not self._pattern_obj:
