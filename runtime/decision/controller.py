@@ -101,6 +101,7 @@ class Controller:
         without a plan (see :attr:`team_velocity`)."""
         self._pace = 0.0  # the steps left the robot's own row reads (its pace)
         self._landing_targets: Array | None = None  # the landing's targets, (n, 2), or None
+        self._claims: tuple[IntArray, int] | None = None  # heard claims and its own slot
         self.agreement = SlotAgreement()
         """What the robot held and told of its slots (:mod:`runtime.decision.agreement`)."""
         self.reset()
@@ -275,7 +276,8 @@ class Controller:
         not carried along the plan) lies nearer robot i's target than its own: robots that
         disagree on their slots, each sure the other lands elsewhere. The landing's filter,
         which takes every peer to follow this robot's plan and keeps half the guard, let two
-        such robots touch."""
+        such robots touch. Under slot agreement a peer heard to claim another slot than this
+        robot's does not contest it (it passes by on its way)."""
         t = self._landing_targets
         if t is None or t.shape != pos.shape:
             return False
@@ -284,6 +286,9 @@ class Controller:
         to_own = np.hypot(pos[:, 0] - t[:, 0], pos[:, 1] - t[:, 1])
         near = to_mine < to_own
         near[i] = False
+        if self._claims is not None:  # a peer heard to claim another slot does not contest
+            claims, mine_slot = self._claims
+            near &= (claims < 0) | (claims == mine_slot)
         return bool(near.any())
 
     def _landing_plan(self, pos: Array, points: Array) -> tuple[Array, Array]:
@@ -404,9 +409,12 @@ class Controller:
                 self._heading = math.atan2(dy, dx)
         self._me, self._ref = i, guard_ref  # the raw views, for the landing's centroid
         slots, cx, cy = self._assign(pos, moment)  # 1. assign
+        self._claims = None
         if heard is not None and step is not None:  # 1b. agree on a conflict it hears
             slots = self.agreement.agree(i, slots, step, heard)
             self._prev_slots = slots
+            if len(heard.claims) == len(slots):
+                self._claims = (heard.claims, int(slots[i]))
         slot = int(slots[i])
         P = pos[None]  # the team as a batch of one
         V = self._vel

@@ -20,6 +20,13 @@ def test_a_peer_nearer_my_target_than_its_own_contests_my_landing() -> None:
     onto_mine = np.array([[0.3, 0.0], [0.25, 0.0], [2.1, 0.0]])  # robot 1 heads for slot 0
     assert c._contested(0, onto_mine)
     assert not c._contested(2, onto_mine)  # nobody near robot 2's target
+    c._claims = (np.array([0, 1, 2]), 0)  # slot agreement: robot 1 is heard to claim slot 1
+    assert not c._contested(0, onto_mine)  # it passes by on its way
+    c._claims = (np.array([0, 0, 2]), 0)  # robot 1 is heard to claim robot 0's slot
+    assert c._contested(0, onto_mine)
+    c._claims = (np.array([0, -1, 2]), 0)  # nothing heard of robot 1: it may
+    assert c._contested(0, onto_mine)
+    c._claims = None
     c._landing_targets = None  # not landing: nothing to contest
     assert not c._contested(0, onto_mine)
 
