@@ -125,10 +125,9 @@ from runtime.wire.messages import (
     Slots,
     View,
     decode_pattern,
+    encode,
     encode_command,
-    encode_slots,
     encode_status,
-    encode_view,
 )
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
@@ -546,21 +545,20 @@ class Robot:
 
     def _publish_slots(self) -> None:
         msg, self._slots = self._slots, None
-        if msg is None or self._slots_pub is None:
-            return
-        try:
-            self._slots_pub.put(encode_slots(msg))
-        except MessageError as e:
-            self.stats.error(f"slots: {e}")
+        self._put("slots", self._slots_pub, msg)
 
     def _publish_view(self) -> None:
         view, self._view = self._view, None
-        if view is None or self._view_pub is None:
+        self._put("view", self._view_pub, view)
+
+    def _put(self, what: str, pub: zenoh.Publisher | None, msg: Slots | View | None) -> None:
+        """Encode and put a staged message (none staged, or no publisher: nothing)."""
+        if msg is None or pub is None:
             return
         try:
-            self._view_pub.put(encode_view(view))
+            pub.put(encode(msg))
         except MessageError as e:
-            self.stats.error(f"view: {e}")
+            self.stats.error(f"{what}: {e}")
 
     def _nonfinite(self, step: Step, pattern: Array, d: Decision,
                    seen: Seen) -> Decision:
