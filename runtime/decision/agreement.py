@@ -26,12 +26,17 @@ peer's pose (:class:`Hearing`: told at step ``s``, heard at ``s + max(1, latency
 since robots decide a step at once and a message told at it is heard at the next at the
 soonest; lost with chance ``loss``, the last heard kept). A robot process tells and hears
 over Zenoh (``patternrl robot --agree``, :mod:`runtime.robot.slot_talk`) through the same
-:class:`Hearing`. Measured (``benchmarks/conditions.py``'s seeds, ``rule:frame-balanced``
-+ the tracker): circle -> cross under the realistic preset 3.87x ->
-2.34x, at 5 cm of noise 2.62x -> 1.61x; the random starts' table within its noise (n = 50
-realistic, 10 episodes a shape, 1.309x -> 1.312x). Taking the leader's assignment
-always, conflict or not, cost n = 50 0.027x: its assignment is a step late and solved on
-the leader's view of each robot, where the robot's own is exact.
+:class:`Hearing`. A peer heard to claim another slot than the robot's does not contest its
+landing (:meth:`runtime.decision.controller.Controller._contested`).
+
+Measured (``benchmarks/agreement.py``, ``benchmarks/results/agreement.txt``;
+``rule:frame-balanced`` + the tracker, 10 robots, from a formed circle to the cross, 200
+episodes): the realistic preset 3.78x -> 2.45x the steps bound, 5 cm of noise 2.68x -> 1.59x,
+0 collisions both ways; from random starts n = 50 realistic 1.325x -> 1.312x. Taking the
+leader's assignment always, conflict or not, cost n = 50 0.027x: its assignment is a step late
+and solved on the leader's view of each robot, where the robot's own is exact. Each robot hears
+n - 1 messages a step: on one 2-core machine simulating a whole swarm of 50 a launch took 3.8x
+as long, so robots agree only when asked (``--agree``).
 """
 
 from __future__ import annotations

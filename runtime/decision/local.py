@@ -264,8 +264,8 @@ class LocalDecisions:
     comparison (``benchmarks/conditions.py``'s ``+naive`` brains). ``agree``: under imperfect
     sensing every robot tells its slot and the leader its assignment, heard through
     :class:`runtime.decision.agreement.Hearing`, and a robot that hears a peer claim its slot
-    goes by the leader's (:mod:`runtime.decision.agreement`; robot processes do not tell
-    their slots yet, so it is off by default: what a launch's robots do).
+    goes by the leader's (:mod:`runtime.decision.agreement`; off by default, as for a robot
+    process and ``launch``, which agree with ``--agree``).
     """
 
     def __init__(self, brain: Brain, n_envs: int, n_robots: int, conditions: Conditions,
