@@ -382,10 +382,11 @@ def test_the_wheels_gain_bounds_the_guards_command_not_its_distance(gain: float)
 def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
                                                                   by_need: bool) -> None:
     """Each robot of a moving team perceives it on its own (its own sensor and tracker): with
-    exact views, late or on noisy wheels, the two robots of every pair take shares of the
+    exact views, late or on noisy wheels, the two robots of every pair reckon shares of the
     guard's room that sum to 1 and move toward their need by at most ``GUARD_SHARE_RATE`` a
-    step; under noise or loss, half each. A missed world step or a restart brings them back
-    toward half."""
+    step, and each takes the least of its reckoned shares over the views' age, so the two it
+    takes sum to at most 1; under noise or loss, half each. A missed world step or a restart
+    brings them back toward half."""
     from runtime.core.orca import GUARD_REF_COLUMNS
     from runtime.decision.local import GUARD_SHARE_RATE, Perception
 
@@ -399,17 +400,22 @@ def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
     step[0] = 0.0  # one stands still
     off = ~np.eye(n, dtype=bool)
     last = np.full((n, n), 0.5)
+    last_reckoned = last.copy()
     most = 0.0  # the farthest any share came from half
     for t in (*range(10), 11):  # world steps, the tenth missed (a robot process)
         seen = per.perceive(np.repeat(team[None], n, axis=0), None, t)
         assert seen.guard_ref is not None and seen.guard_ref.shape == (n, n, GUARD_REF_COLUMNS)
         share = seen.guard_ref[..., 5]
-        np.testing.assert_allclose((share + share.T)[off], 1.0, atol=1e-12)
+        assert ((share + share.T)[off] <= 1.0 + 1e-12).all()
+        reckoned = share if per._share is None else per._share
+        np.testing.assert_allclose((reckoned + reckoned.T)[off], 1.0, atol=1e-12)
+        assert (share <= reckoned + 1e-12).all()
         assert np.abs(share - last).max() <= GUARD_SHARE_RATE + 1e-12
         if t == 11:  # no last step to read: back toward half
-            gone = np.abs(last - 0.5)
-            assert (np.abs(share - 0.5) <= np.maximum(gone - GUARD_SHARE_RATE, 0) + 1e-12).all()
-        last = share.copy()
+            gone = np.abs(last_reckoned - 0.5)
+            assert (np.abs(reckoned - 0.5)
+                    <= np.maximum(gone - GUARD_SHARE_RATE, 0) + 1e-12).all()
+        last, last_reckoned = share.copy(), reckoned.copy()
         most = max(most, float(np.abs(share - 0.5).max()))
         team = team + step * (2 if t == 9 else 1)
     assert (most > 0.25) if by_need else (most == 0.0)
