@@ -18,7 +18,10 @@ nearest peer: it never forms, and its column is the safety filter's alone (colli
 
 A brain named ``X+naive`` runs as robots did before they knew their sensing: the safety
 filter on the raw views and their frame differences, no widened margin, no damped landing
-(the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates.
+(the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates;
+``X+agree`` has the robots agree on their slots and their plan's frame
+(:mod:`runtime.decision.agreement`, ``patternrl robot --agree``); suffixes combine
+(``rule:frame-balanced+est+agree``).
 
 Episode e of shape s is env e of a world seeded ``--seed + index(s)``: every brain sees
 the same starts and the same sensing noise.
@@ -83,9 +86,12 @@ def split_cases(text: str) -> list[str]:
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
              shapes: tuple[str, ...], world: WorldConfig = DEFAULT_WORLD) -> dict[str, Any]:
-    estimator = brain_name.endswith("+est")
-    naive = brain_name.endswith("+naive")
-    path = brain_name.removesuffix("+est").removesuffix("+naive")
+    path, *flags = brain_name.split("+")
+    unknown = set(flags) - {"est", "naive", "agree"}
+    if unknown:
+        raise SystemExit(f"conditions: unknown suffix +{sorted(unknown)[0]} in {brain_name!r} "
+                         "(est, agree, naive)")
+    estimator, naive, agree = "est" in flags, "naive" in flags, "agree" in flags
     brain = ChargeBrain() if path == ADVERSARY else load_brain(
         str(ROOT / path) if path.endswith(".onnx") else path)
     cond = parse_conditions(CASES.get(case, case))
@@ -93,7 +99,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
                              "steps": 0.0, "wall": 0.0}
     for k, shape in enumerate(shapes):
         r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
-                           estimator=estimator, progress=False, naive=naive, world=world)
+                           estimator=estimator, progress=False, naive=naive, world=world,
+                           agree=agree)
         st = r.episode_stats
         formed = [f > 0 for f in st["formed"]]
         held = [h >= 0.9 for h in st["held"]]
@@ -138,7 +145,8 @@ def main(argv: list[str] | None = None) -> int:
                    f"separated by ';' (\"realistic,loss=0;late3\"; default all: "
                    f"{', '.join(CASES)})")
     p.add_argument("--brains", default=",".join(BRAINS),
-                   help="comma-separated brains; '+est' adds the estimator, '+naive' runs the "
+                   help="comma-separated brains; '+est' adds the estimator, '+agree' the slot "
+                   "and frame agreement, '+naive' runs the "
                    "robot as before it knew its sensing (filter on the raw views and their "
                    "frame differences, no widened margin, no damped landing)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")

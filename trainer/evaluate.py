@@ -435,7 +435,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agree", action="store_true",
                    help="under imperfect sensing the robots tell each other their slots, and "
                    "a robot that hears a peer claim its own slot goes by the lowest-id "
-                   "robot's assignment (slot agreement; robot and launch --agree do the same)")
+                   "robot's assignment; under noise every plan goes in the lowest-id robot's "
+                   "frame (slot and frame agreement; robot and launch --agree do the same)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

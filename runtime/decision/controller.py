@@ -44,7 +44,11 @@ from runtime.decision.settle import (
 from runtime.types import Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-__all__ = ["HEADING_MIN_MOVE_M", "TURN_IN_PLACE_MPS", "Controller"]
+__all__ = ["FRAME_SLACK_M", "HEADING_MIN_MOVE_M", "TURN_IN_PLACE_MPS", "Controller"]
+
+FRAME_SLACK_M = 1.0
+"""The leader's frame may lie this much (m) beyond the farthest a plan's frame could lie
+from the team's centroid frame (:meth:`Controller._frame_reach`) and still be taken."""
 
 TURN_IN_PLACE_MPS = 1e-3
 """A differential-drive command the guard would stop keeps this speed (m/s, 0.1 mm a step)
@@ -102,6 +106,7 @@ class Controller:
         self._pace = 0.0  # the steps left the robot's own row reads (its pace)
         self._landing_targets: Array | None = None  # the landing's targets, (n, 2), or None
         self._claims: tuple[IntArray, int] | None = None  # heard claims and its own slot
+        self._heard: Heard | None = None  # what it heard this step (None: not agreeing)
         self.agreement = SlotAgreement()
         """What the robot held and told of its slots (:mod:`runtime.decision.agreement`)."""
         self.reset()
@@ -301,7 +306,22 @@ class Controller:
             seen_team(pos, self._me, self._ref), points, self._tick, pos.mean(axis=0),
             lambda team: self._planned_centroid(team, points),
             lambda team: self._cc[shared_slots(team, self._cc)])
+        if self._heard is not None and self._lander.settle.sigma_m > 0.0:  # one frame for all
+            if self._me == 0:
+                m = self.agreement.lead_frame(self._planned_centroid(pos, points))
+            else:  # a frame no plan of this team could have is not taken
+                told = self.agreement.follow_frame(self._heard, m, self._frame_reach(pos))
+                m = m if told is None else told
         return centroid_targets(pos, points, m, self.world)
+
+    def _frame_reach(self, team: Array) -> float:
+        """How far (m) a plan's frame may lie from the team's centroid frame: where every
+        robot's way to its slot is at most the longest in the centroid frame (at most the
+        team's and the pattern's radii together), the frames lie at most twice that apart;
+        a metre more for the plan's weight on travel."""
+        r_team = float(np.hypot(*(team - team.mean(axis=0)).T).max(initial=0.0))
+        r_pattern = float(np.hypot(*self._cc.T).max(initial=0.0))
+        return 2.0 * (r_team + r_pattern) + FRAME_SLACK_M
 
     def _planned_centroid(self, team: Array, points: Array) -> Array:
         """The centroid (2,) m of the targets the plan gives ``team``, as the robot sees it of
@@ -410,6 +430,8 @@ class Controller:
         self._me, self._ref = i, guard_ref  # the raw views, for the landing's centroid
         slots, cx, cy = self._assign(pos, moment)  # 1. assign
         self._claims = None
+        self._heard = heard if step is not None else None
+        self.agreement.heard_frame = False
         if heard is not None and step is not None:  # 1b. agree on a conflict it hears
             slots = self.agreement.agree(i, slots, step, heard)
             self._prev_slots = slots

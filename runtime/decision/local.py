@@ -326,6 +326,7 @@ class LocalDecisions:
         if hearing is not None:
             hearing.hear(self.step)
         leaders = np.full((E, n), -1, dtype=np.int64)
+        frames = np.full((E, 2), np.nan)
         for e in range(E):
             if live is not None and not live[e]:
                 continue
@@ -345,7 +346,10 @@ class LocalDecisions:
             lead = self.controllers[e * n].previous_slots
             if lead is not None and len(lead) == n:
                 leaders[e] = lead
+            told = self.controllers[e * n].agreement.told_frame
+            if told is not None:
+                frames[e] = told
         if hearing is not None:
-            hearing.tell(self.step, slots, leaders)
+            hearing.tell(self.step, slots, leaders, frames)
         self.step += 1
         return out, slots, changed

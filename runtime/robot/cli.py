@@ -159,10 +159,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     "on the estimates")
     cg.add_argument("--agree", action="store_true",
                     help="under imperfect --conditions, tell the team the slot this robot goes "
-                    "by each step (robot/<id>/slots; the lowest-id robot its whole assignment) "
-                    "and hear theirs; on hearing a peer claim its own slot it goes by the "
-                    "lowest-id robot's assignment (slot agreement: shorter transitions under "
-                    "noise)")
+                    "by each step (robot/<id>/slots; the lowest-id robot its whole assignment "
+                    "and, under noise, its plan's frame) and hear theirs; on hearing a peer "
+                    "claim its own slot it goes by the lowest-id robot's assignment, and under "
+                    "noise its plan goes in that robot's frame (slot and frame agreement: "
+                    "shorter transitions and fewer steps under noise)")
     cg.add_argument("--view-every", type=int, default=VIEW_EVERY, metavar="N",
                     help="under imperfect --conditions, publish the team as this robot perceived "
                     "it (robot/<id>/view) for one decision every N steps, so the log holds "

@@ -493,10 +493,13 @@ class Robot:
                 if d.error == ERR_NONFINITE:
                     d = self._nonfinite(step, pattern, d, seen)
                 if talk is not None:
-                    talk.adopted_steps += self.controller.agreement.adopted
+                    agreement = self.controller.agreement
+                    talk.adopted_steps += agreement.adopted
+                    talk.frame_steps += agreement.heard_frame
                     self._slots = talk.told(step.step, version, step.ids, me,
                                             None if d.slot < 0
-                                            else self.controller.previous_slots)
+                                            else self.controller.previous_slots,
+                                            agreement.told_frame)
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -709,7 +712,8 @@ def run(args: argparse.Namespace) -> int:
             heavy_modules=",".join(heavy) if heavy else "none",
             **({} if robot.slot_talk is None else {
                 "slots_heard": robot.slot_talk.heard_messages,
-                "leader_steps": robot.slot_talk.adopted_steps}),
+                "leader_steps": robot.slot_talk.adopted_steps,
+                "frame_steps": robot.slot_talk.frame_steps}),
         )
         return code
     except Exception as e:  # unexpected: one line, no traceback

@@ -2,7 +2,7 @@
 
 ``patternrl robot --agree`` under imperfect sensing tells its team, each step it decides,
 the slot it goes by (a :class:`runtime.wire.messages.Slots` on ``robot/<id>/slots``; the
-team's leader, its lowest id, its whole assignment too) and hears theirs
+team's leader, its lowest id, its whole assignment and its plan's frame too) and hears theirs
 (``robot/*/slots``). What it hears goes through the same :class:`Hearing` as the robots of
 ``patternrl eval --agree`` (:mod:`runtime.decision.agreement`): the message told at step
 ``t - max(1, latency_steps)`` is heard at step ``t``, each lost with the simulated
@@ -26,7 +26,7 @@ import numpy as np
 
 from runtime.conditions import Conditions
 from runtime.decision.agreement import Heard, Hearing
-from runtime.types import IntArray
+from runtime.types import Array, IntArray
 from runtime.wire import keys
 from runtime.wire.messages import NO_SLOT, MessageError, Slots, decode_slots
 
@@ -61,6 +61,9 @@ class SlotTalk:
         hears (before the simulated loss): the robot's exit line says it."""
         self.adopted_steps = 0
         """Steps the robot went by its leader's assignment (counted by the robot)."""
+        self.frame_steps = 0
+        """Steps the robot's plan went in its leader's frame, as heard (counted by the
+        robot)."""
 
     def take(self, key: str, payload: bytes) -> None:
         """A payload on ``key`` (one robot's slots key): decoded, bounded and kept."""
@@ -102,6 +105,7 @@ class SlotTalk:
         src = step - self.delay
         claims = np.full((1, n), -1, dtype=np.int64)
         leader = np.full((1, n), -1, dtype=np.int64)
+        frame = np.full((1, 2), np.nan)
         with self._lock:
             for k, rid in enumerate(team):
                 msg = self._got.get(rid, {}).get(src)
@@ -112,17 +116,22 @@ class SlotTalk:
                     claims[0, k] = msg.slot
                 if k == 0 and msg.ids.shape[0] == n and tuple(msg.ids.tolist()) == team:
                     leader[0] = msg.assignment
-        self._hearing.tell(src, claims, leader)
+                    if msg.frame is not None:
+                        frame[0] = msg.frame
+        self._hearing.tell(src, claims, leader, frame)
         self._hearing.hear(step)
         return self._hearing.heard(me)
 
     def told(self, step: int, version: int, ids: Sequence[int], me: int,
-             slots: IntArray | None) -> Slots:
+             slots: IntArray | None, frame: Array | None = None) -> Slots:
         """The message the robot sends for its decision of ``step``: its slot (``slots``
-        None or -1: none), and from the leader (row 0) the whole assignment."""
+        None or -1: none), and from the leader (row 0) the whole assignment and its plan's
+        ``frame`` (2,) m (None: none)."""
         if slots is None or len(slots) != len(ids) or int(slots[me]) < 0:
             return Slots(self.robot_id, step, version, NO_SLOT)
         if me == 0:
+            told = None if frame is None or not np.isfinite(frame).all() else (
+                float(frame[0]), float(frame[1]))
             return Slots(self.robot_id, step, version, int(slots[0]), np.asarray(ids),
-                         np.asarray(slots))
+                         np.asarray(slots), told)
         return Slots(self.robot_id, step, version, int(slots[me]))

@@ -344,10 +344,13 @@ SLOTS: Final = FieldTable("slots", "RobotSlots", (
     Field("slot", "u32", 4),
     Field("ids", "u32", 5, repeated=True, max_items=MAX_SLOTS_ROBOTS),
     Field("assignment", "u32", 6, repeated=True, max_items=MAX_SLOTS_ROBOTS),
+    Field("frame", "f64", 7, "m", repeated=True, lo=-MAX_VIEW_COORD_M, hi=MAX_VIEW_COORD_M,
+          max_items=2),
 ))
 """Robot -> robots: the slot a robot goes by at a step, and the leader's whole assignment
-(:class:`runtime.wire.slots.Slots`); on the wire a fixed part (:data:`SLOTS_HEAD`), then
-the team's ids as uint32 and the assignment as uint16, in a log two repeated fields."""
+and its plan's frame (:class:`runtime.wire.slots.Slots`); on the wire a fixed part
+(:data:`SLOTS_HEAD`), then the team's ids as uint32, the assignment as uint16 and the frame
+as two float64 where there is one, in a log three repeated fields (the frame: none or x, y)."""
 
 SLOTS_HEAD: Final = FieldTable("slots", "", (
     Field("robot_id", "u32"),

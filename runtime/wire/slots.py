@@ -8,17 +8,21 @@ derived from the field table :data:`~runtime.wire.fields.SLOTS_HEAD`::
                                                                                 (30 bytes)
     n x <I>           the team's ids, strictly ascending, the sender among them
     n x <H>           the assignment: robot ids[k] goes to slot assignment[k] (a permutation)
+    <dd>              the leader's plan frame x, y (m), where it has one (n > 0 only)
 
 Every robot that agrees on its slots (``patternrl robot --agree``, under imperfect sensing:
 :mod:`runtime.decision.agreement`) sends one each step it decides: its slot (``NO_SLOT``:
-none), n = 0; the team's leader, its lowest id, also its whole assignment. The decoder
+none), n = 0; the team's leader, its lowest id, also its whole assignment and, under
+noise, the frame its plan goes in, which the team goes by too. The decoder
 bounds the count (:data:`MAX_SLOTS_ROBOTS`) and checks it against the bytes really there
 before reading anything, then the values (ids ascending, slots below n), then their meaning
-(the sender among the ids, the assignment a permutation, the sender's slot its own entry).
+(the sender among the ids, the assignment a permutation, the sender's slot its own entry,
+a frame only beside an assignment).
 """
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass, field
 from typing import Final
@@ -38,21 +42,27 @@ from runtime.wire.codec import (
     check_header,
     uint,
 )
-from runtime.wire.fields import MAX_SLOTS_ROBOTS, NO_SLOT, SLOTS_HEAD
+from runtime.wire.fields import MAX_SLOTS_ROBOTS, MAX_VIEW_COORD_M, NO_SLOT, SLOTS_HEAD
 
 __all__ = ["MAX_SLOTS_ROBOTS", "NO_SLOT", "Slots", "check_slots", "decode_slots",
            "encode_slots"]
 
 _HEAD: Final = SLOTS_HEAD.wire_struct()
 assert _HEAD.size == 30
+_FRAME: Final = struct.Struct("<dd")
 
 
 def _check(rid: int, slot: int, ids: npt.NDArray[np.uint32],
-           assignment: npt.NDArray[np.uint16]) -> None:
+           assignment: npt.NDArray[np.uint16], frame: tuple[float, float] | None) -> None:
     """The values, then the meaning (MessageError with one line)."""
     n = ids.shape[0]
     if assignment.shape != (n,):
         raise MessageError(f"slots: {n} ids but {assignment.shape[0]} slots")
+    if frame is not None:
+        if not all(math.isfinite(v) and abs(v) <= MAX_VIEW_COORD_M for v in frame):
+            raise MessageError(f"slots.frame must be finite, within {MAX_VIEW_COORD_M:g} m")
+        if n == 0:
+            raise MessageError("slots.frame comes only with the leader's assignment")
     if n > 1 and not bool((ids[1:] > ids[:-1]).all()):
         raise MessageError("slots.ids must be strictly ascending")
     if n == 0:
@@ -74,8 +84,8 @@ class Slots:
     """Robot -> robots: the slot robot ``robot_id`` goes by at ``step`` for the pattern of
     ``pattern_version`` (:data:`NO_SLOT`: none), and, from the team's leader, the whole
     assignment: ``ids`` (n,) uint32 strictly ascending, the sender among them, and
-    ``assignment`` (n,) uint16, robot ``ids[k]``'s slot; both empty from the others.
-    Read-only arrays."""
+    ``assignment`` (n,) uint16, robot ``ids[k]``'s slot; both empty from the others; and
+    under noise the leader's plan ``frame`` (x, y) m (None: none). Read-only arrays."""
 
     robot_id: int
     step: int
@@ -83,8 +93,15 @@ class Slots:
     slot: int
     ids: npt.NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
     assignment: npt.NDArray[np.uint16] = field(default_factory=lambda: np.zeros(0, np.uint16))
+    frame: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.frame is not None:
+            try:
+                fx, fy = (float(v) for v in self.frame)
+            except (TypeError, ValueError) as e:
+                raise MessageError(f"slots.frame: (x, y) expected: {e}") from None
+            object.__setattr__(self, "frame", (fx, fy))
         try:
             ids = np.array(self.ids, dtype=np.int64).reshape(-1)
             a = np.array(self.assignment, dtype=np.int64).reshape(-1)
@@ -104,7 +121,8 @@ class Slots:
         return (self.robot_id == other.robot_id and self.step == other.step
                 and self.pattern_version == other.pattern_version and self.slot == other.slot
                 and np.array_equal(self.ids, other.ids)
-                and np.array_equal(self.assignment, other.assignment))
+                and np.array_equal(self.assignment, other.assignment)
+                and self.frame == other.frame)
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -119,12 +137,13 @@ def check_slots(msg: Slots) -> Slots:
     uint(w, "step", msg.step, U64)
     uint(w, "pattern_version", msg.pattern_version, U64)
     _check(uint(w, "robot_id", msg.robot_id, U32), uint(w, "slot", msg.slot, U32),
-           msg.ids, msg.assignment)
+           msg.ids, msg.assignment, msg.frame)
     return msg
 
 
 def encode_slots(msg: Slots) -> bytes:
-    """Encode a :class:`Slots`: 30 bytes, then 6 bytes per team member (the leader's)."""
+    """Encode a :class:`Slots`: 30 bytes, then 6 bytes per team member and 16 for a frame
+    (the leader's)."""
     check_slots(msg)
     n = msg.ids.shape[0]
     try:
@@ -133,7 +152,8 @@ def encode_slots(msg: Slots) -> bytes:
     except (struct.error, TypeError) as e:
         raise MessageError(f"cannot encode slots: {e}") from None
     return (head + msg.ids.astype("<u4").tobytes()
-            + msg.assignment.astype("<u2").tobytes())
+            + msg.assignment.astype("<u2").tobytes()
+            + (b"" if msg.frame is None else _FRAME.pack(*msg.frame)))
 
 
 def decode_slots(payload: Buffer) -> Slots:
@@ -147,12 +167,15 @@ def decode_slots(payload: Buffer) -> Slots:
         raise MessageError(f"slots claims {n} robots, at most {MAX_SLOTS_ROBOTS}")
     ids = np.frombuffer(r.take(4 * n, "ids"), "<u4").astype(np.uint32)
     a = np.frombuffer(r.take(2 * n, "assignment"), "<u2").astype(np.uint16)
+    frame = None
+    if len(view) - (_HEAD.size + 6 * n) == _FRAME.size:
+        frame = _FRAME.unpack(r.take(_FRAME.size, "frame"))
     r.finish()
-    _check(rid, slot, ids, a)
+    _check(rid, slot, ids, a, frame)
     ids.setflags(write=False)
     a.setflags(write=False)
     out: Slots = object.__new__(Slots)  # fresh, checked arrays: no __post_init__ copies
     for name, v in (("robot_id", rid), ("step", step), ("pattern_version", version),
-                    ("slot", slot), ("ids", ids), ("assignment", a)):
+                    ("slot", slot), ("ids", ids), ("assignment", a), ("frame", frame)):
         object.__setattr__(out, name, v)
     return out

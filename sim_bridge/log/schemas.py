@@ -281,15 +281,19 @@ def view_of(m: Any) -> View:
 def slots_pb(v: Slots) -> bytes:
     m = message_class(ROBOT_SLOTS)(robot_id=v.robot_id, step=v.step,
                                    pattern_version=v.pattern_version, slot=v.slot,
-                                   ids=v.ids.tolist(), assignment=v.assignment.tolist())
+                                   ids=v.ids.tolist(), assignment=v.assignment.tolist(),
+                                   frame=[] if v.frame is None else list(v.frame))
     return bytes(m.SerializeToString())
 
 
 def slots_of(m: Any) -> Slots:
     """A parsed ``patternrl.RobotSlots`` as a :class:`~runtime.wire.messages.Slots`, checked
     as the wire's decoder checks one (:class:`~runtime.wire.messages.MessageError` if not)."""
+    if len(m.frame) not in (0, 2):
+        raise MessageError(f"slots.frame: none or (x, y), got {len(m.frame)} values")
     return check_slots(Slots(m.robot_id, m.step, m.pattern_version, m.slot,
-                             np.asarray(m.ids, np.int64), np.asarray(m.assignment, np.int64)))
+                             np.asarray(m.ids, np.int64), np.asarray(m.assignment, np.int64),
+                             tuple(m.frame) if len(m.frame) else None))  # type: ignore[arg-type]
 
 
 def raw_sample_pb(key: str, size: int, reason: str, payload: bytes) -> bytes:

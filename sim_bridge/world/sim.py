@@ -126,7 +126,8 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
     p.add_argument("--agree", action="store_true",
                    help="launch, under imperfect --conditions: every robot tells the others "
                         "the slot it goes by each step and goes by the lowest-id robot's "
-                        "assignment when it hears a peer claim its own (slot agreement)")
+                        "assignment when it hears a peer claim its own, and under noise plans "
+                        "in that robot's frame (slot and frame agreement)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--ros2", action="store_true",
                    help="the robots as a ROS 2 fleet: /robot_<i>/odom out, /robot_<i>/cmd_vel "

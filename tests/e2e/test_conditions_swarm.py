@@ -152,8 +152,9 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
 ) -> None:
     """``launch --agree`` under the realistic preset (mutual TLS, the robots' sessions
     enforcing every robot's rules): every robot tells its slot each step it decides on its own
-    key, the leader (robot 0) its whole assignment over the team, every robot hears its
-    peers, and the team forms circle then cross without a collision."""
+    key, the leader (robot 0) its whole assignment over the team and its plan's frame, every
+    robot hears its peers and plans in the leader's frame, and the team forms circle then
+    cross without a collision."""
     log = tmp_path / "agree.mcap"
     launch = procs.start(
         "launch", "launch", "--robots", "6", "--patterns", "circle,cross", "--seed", "5",
@@ -167,6 +168,7 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
 
     per_robot: dict[int, int] = {}
     assignments = []
+    framed = 0
     with open(log, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages():
             k = keys.parse_key(channel.topic)
@@ -177,6 +179,7 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
             if k.robot_id == 0:
                 m = pb.parse(pb.ROBOT_SLOTS, message.data)
                 assignments.append((list(m.ids), sorted(m.assignment)))
+                framed += len(m.frame) == 2
     steps = result["steps"]
     assert sorted(per_robot) == list(range(6))
     assert all(c >= steps // 2 for c in per_robot.values()), (per_robot, steps)
@@ -186,3 +189,8 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
              for line in Path(result["robots_log"]).read_text().splitlines()
              if "slots_heard=" in line]
     assert len(heard) == 6 and min(heard) > 0, heard
+    assert framed >= len(assignments) // 2  # under noise the leader tells its plan's frame
+    on_frame = [int(line.split("frame_steps=")[1].split()[0].rstrip("]"))
+                for line in Path(result["robots_log"]).read_text().splitlines()
+                if "frame_steps=" in line]
+    assert len(on_frame) == 6 and sorted(on_frame)[1] > 0, on_frame  # all but the leader

@@ -58,6 +58,21 @@ def test_a_step_hears_what_was_told_a_step_before_for_the_pattern_held() -> None
     assert h.leader is None and (h.claims == -1).all()
 
 
+def test_the_leaders_frame_is_heard_with_its_assignment() -> None:
+    t, _ = talk()
+    t.take(keys.slots_key(SWARM, 0), encode_slots(
+        Slots(0, 4, 1, 2, np.array(TEAM), np.array([2, 0, 1]), (3.0, 4.0))))
+    h = t.heard(5, TEAM, 1, version=1)
+    assert h.frame is not None and h.frame.tolist() == [3.0, 4.0]
+    tell(t, 0, 5, 2, full=(2, 0, 1))  # a frameless message: the last frame heard kept
+    h = t.heard(6, TEAM, 1, version=1)
+    assert h.frame is not None and h.frame.tolist() == [3.0, 4.0]
+    other, _ = talk()
+    other.take(keys.slots_key(SWARM, 0), encode_slots(
+        Slots(0, 4, 1, 2, np.array(TEAM), np.array([2, 0, 1]), (3.0, 4.0))))
+    assert other.heard(5, (0, 2, 5, 7), 1, version=1).frame is None  # another team
+
+
 def test_the_leaders_assignment_counts_for_its_very_team_only() -> None:
     t, _ = talk()
     tell(t, 0, 4, 2, full=(2, 0, 1))
@@ -108,7 +123,12 @@ def test_what_a_robot_tells() -> None:
     t, _ = talk(me=0)
     lead = t.told(3, 1, TEAM, 0, np.array([2, 0, 1]))
     assert lead.slot == 2 and lead.ids.tolist() == list(TEAM)
-    assert lead.assignment.tolist() == [2, 0, 1]
+    assert lead.assignment.tolist() == [2, 0, 1] and lead.frame is None
+    framed = t.told(3, 1, TEAM, 0, np.array([2, 0, 1]), np.array([4.0, 5.5]))
+    assert framed.frame == (4.0, 5.5)
+    assert t.told(3, 1, TEAM, 0, np.array([2, 0, 1]), np.array([np.nan, 1.0])).frame is None
+    assert talk(me=5)[0].told(3, 1, TEAM, 2, np.array([2, 0, 1]),
+                              np.array([4.0, 5.5])).frame is None  # a follower's: no frame
     follower = talk(me=5)[0].told(3, 1, TEAM, 2, np.array([2, 0, 1]))
     assert follower.slot == 1 and follower.ids.size == 0
     assert talk(me=5)[0].told(3, 1, TEAM, 2, None).slot == NO_SLOT

@@ -57,6 +57,41 @@ def test_round_trip(step: int, version: int, ids: list[int], data: st.DataObject
         assert back == msg and m.decode(raw) == msg and m.encode(msg) == raw
         assert not back.ids.flags.writeable and not back.assignment.flags.writeable
     assert decode_slots(encode_slots(full)).assignment.tolist() == perm
+    fx, fy = data.draw(st.tuples(*[st.floats(-1e6, 1e6, allow_nan=False)] * 2))
+    framed = Slots(ids[me], step, version, perm[me], np.array(ids), np.array(perm), (fx, fy))
+    raw = encode_slots(framed)
+    assert len(raw) == HEAD.size + 6 * n + 16
+    back = decode_slots(raw)
+    assert back == framed and back.frame == (fx, fy) and back != full
+
+
+def test_a_frame_is_bounded_and_comes_only_with_the_leaders_assignment() -> None:
+    good = encode_slots(leader())
+    framed = encode_slots(Slots(3, 7, 4, 2, np.array([3, 5, 9]), np.array([2, 0, 1]),
+                                (1.5, -2.0)))
+    assert framed[:len(good)] == good and decode_slots(framed).frame == (1.5, -2.0)
+    for x in (float("nan"), float("inf"), 2e6):
+        with pytest.raises(MessageError, match=r"slots\.frame must be finite"):
+            decode_slots(good + struct.pack("<dd", x, 0.0))
+        with pytest.raises(MessageError, match=r"slots\.frame must be finite"):
+            encode_slots(Slots(3, 7, 4, 2, np.array([3, 5, 9]), np.array([2, 0, 1]),
+                               (0.0, x)))
+    claim = encode_slots(Slots(1, 3, 0, 0))
+    with pytest.raises(MessageError, match="only with the leader's assignment"):
+        decode_slots(claim + struct.pack("<dd", 0.0, 0.0))
+    with pytest.raises(MessageError, match="only with the leader's assignment"):
+        encode_slots(Slots(1, 3, 0, 0, frame=(0.0, 0.0)))
+    with pytest.raises(MessageError, match="trailing"):  # half a frame
+        decode_slots(good + struct.pack("<d", 1.0))
+    with pytest.raises(MessageError, match=r"slots.frame: \(x, y\) expected"):
+        Slots(3, 7, 4, 2, frame=(1.0,))  # type: ignore[arg-type]
+    parsed = pb.parse(pb.ROBOT_SLOTS, pb.slots_pb(decode_slots(framed)))
+    assert list(parsed.frame) == [1.5, -2.0]
+    assert pb.slots_of(parsed) == decode_slots(framed)
+    assert pb.slots_of(pb.parse(pb.ROBOT_SLOTS, pb.slots_pb(leader()))).frame is None
+    del parsed.frame[1]
+    with pytest.raises(MessageError, match="none or"):
+        pb.slots_of(parsed)
 
 
 def test_refused_before_allocation() -> None:
