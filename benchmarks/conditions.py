@@ -18,10 +18,11 @@ nearest peer: it never forms, and its column is the safety filter's alone (colli
 
 A brain named ``X+naive`` runs as robots did before they knew their sensing: the safety
 filter on the raw views and their frame differences, no widened margin, no damped landing
-(the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates;
-``X+agree`` has the robots agree on their slots and their plan's frame
-(:mod:`runtime.decision.agreement`, ``patternrl robot --agree``); suffixes combine
-(``rule:frame-balanced+est+agree``).
+(the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates.
+The robots agree as ``patternrl robot`` does unless told otherwise (under noise every plan
+goes in the leader's frame, :mod:`runtime.decision.agreement`): ``X+agree`` has them agree
+on their slots too (``--agree slots``), ``X+alone`` tell each other nothing (``--agree
+off``). Suffixes combine (``rule:frame-balanced+est+agree``).
 
 Episode e of shape s is env e of a world seeded ``--seed + index(s)``: every brain sees
 the same starts and the same sensing noise.
@@ -48,6 +49,7 @@ sys.path.insert(0, str(ROOT))
 
 from runtime.brain.brain import load_brain  # noqa: E402 -- path set-up
 from runtime.conditions import PRESETS, parse_conditions  # noqa: E402
+from runtime.decision.agreement import DEFAULT_AGREE  # noqa: E402
 from runtime.errors import InputError  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD, WorldConfig  # noqa: E402
 from trainer.adversary import ADVERSARY, ChargeBrain  # noqa: E402
@@ -87,11 +89,12 @@ def split_cases(text: str) -> list[str]:
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
              shapes: tuple[str, ...], world: WorldConfig = DEFAULT_WORLD) -> dict[str, Any]:
     path, *flags = brain_name.split("+")
-    unknown = set(flags) - {"est", "naive", "agree"}
+    unknown = set(flags) - {"est", "naive", "agree", "alone"}
     if unknown:
         raise SystemExit(f"conditions: unknown suffix +{sorted(unknown)[0]} in {brain_name!r} "
-                         "(est, agree, naive)")
-    estimator, naive, agree = "est" in flags, "naive" in flags, "agree" in flags
+                         "(est, agree, alone, naive)")
+    estimator, naive = "est" in flags, "naive" in flags
+    agree = "slots" if "agree" in flags else "off" if "alone" in flags else DEFAULT_AGREE
     brain = ChargeBrain() if path == ADVERSARY else load_brain(
         str(ROOT / path) if path.endswith(".onnx") else path)
     cond = parse_conditions(CASES.get(case, case))
@@ -146,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
                    f"{', '.join(CASES)})")
     p.add_argument("--brains", default=",".join(BRAINS),
                    help="comma-separated brains; '+est' adds the estimator, '+agree' the slot "
-                   "and frame agreement, '+naive' runs the "
+                   "agreement (--agree slots), '+alone' no agreement (--agree off), "
+                   "'+naive' runs the "
                    "robot as before it knew its sensing (filter on the raw views and their "
                    "frame differences, no widened margin, no damped landing)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")

@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 
 from runtime.brain.brain import Brain, BrainError, load_brain
 from runtime.conditions import PERFECT, Conditions, parse_conditions
+from runtime.decision.agreement import DEFAULT_AGREE, add_agree_argument
 from runtime.decision.formation import min_swept_separation
 from runtime.decision.local import LocalDecisions
 from runtime.decision.patterns import PatternError, make_pattern, pattern_label
@@ -106,8 +107,10 @@ class EvalResult:
     """Of the formed episodes, the mean share of the hold window's steps formed."""
     start: str = "random"
     """Where the episodes start: ``random`` starts, or the pattern they start formed in."""
-    agree: bool = False
-    """Whether the robots told each other their slots (:mod:`runtime.decision.agreement`)."""
+    agree: str = "off"
+    """What the robots told each other: ``off`` (nothing), ``frame`` (the leader its plan's
+    frame) or ``slots`` (every robot its slot, the leader its assignment and frame too;
+    :mod:`runtime.decision.agreement`)."""
     episode_stats: dict[str, list[float]] = field(default_factory=dict, repr=False)
     """Per episode (index e = env e): formed, steps, travel_m, lower_bound_steps,
     lower_bound_travel_m, collisions, min_separation_m."""
@@ -169,7 +172,7 @@ def evaluate_brain(
     naive: bool = False,
     on_step: Callable[[Array, Array, BoolArray], None] | None = None,
     start_pattern: str | None = None,
-    agree: bool = False,
+    agree: bool | str = DEFAULT_AGREE,
 ) -> EvalResult:
     """Run ``episodes`` seeded episodes with the brain deciding as on a robot.
 
@@ -183,9 +186,12 @@ def evaluate_brain(
     their patterns ((E, n, 2)) and which episodes still run ((E,)): read-only views, for a
     caller that follows the episodes step by step (``benchmarks/steps_breakdown.py``).
     ``start_pattern``: every episode starts with that pattern just formed (a transition, as
-    in ``patternrl launch``'s sequence), not from random starts. ``agree``: under imperfect
-    sensing the robots tell each other their slots and go by the leader's assignment where
-    two of them hold one slot (:mod:`runtime.decision.agreement`)."""
+    in ``patternrl launch``'s sequence), not from random starts. ``agree``, a mode of
+    :data:`runtime.decision.agreement.AGREE_MODES` (True: ``slots``, False: ``off``): under
+    noise every plan goes in the leader's frame, as it tells it (``frame``, the default, as
+    for ``patternrl robot``); with ``slots`` the robots also tell each other their slots and
+    go by the leader's assignment where two of them hold one slot
+    (:mod:`runtime.decision.agreement`)."""
     t0 = time.perf_counter()
     bw = BatchWorld(
         episodes,
@@ -291,7 +297,8 @@ def evaluate_brain(
         held_rate=float(holds[formed].mean()) if hold_steps and formed.any() else math.nan,
         hold_share=float(held[formed].mean()) if hold_steps and formed.any() else math.nan,
         start="random" if start_pattern is None else pattern_label(start_pattern),
-        agree=local is not None and local.hearing is not None,
+        agree=("off" if local is None or local.hearing is None
+               else "slots" if local.tells_slots else "frame"),
         episode_stats={
             "formed": formed.astype(float).tolist(),
             "steps": steps.tolist(),
@@ -362,7 +369,8 @@ def format_table(r: EvalResult) -> str:
          f"{pct(r.held_rate)} of the formed held  (mean {pct(r.hold_share)} of the next "
          f"{r.hold_steps} steps formed)"),
         ("conditions", r.conditions + ("  + estimator" if r.estimator else "")
-         + ("  + slot agreement" if r.agree else "")),
+         + {"off": "", "frame": "  + the leader's frame",
+            "slots": "  + slot and frame agreement"}.get(r.agree, "")),
         ("collisions", f"{r.collisions} total, {r.collisions_per_episode:.3f} per episode"),
         ("steps", f"{ratio(r.steps_ratio)} the lower bound (mean {r.mean_steps:.1f})"),
         ("travel", f"{ratio(r.travel_ratio)} the lower bound"),
@@ -432,11 +440,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="start every episode with this pattern just formed (a built-in or a "
                    "file, the same team size): the transition from it, as in a launch's "
                    "sequence (default: random starts)")
-    p.add_argument("--agree", action="store_true",
-                   help="under imperfect sensing the robots tell each other their slots, and "
-                   "a robot that hears a peer claim its own slot goes by the lowest-id "
-                   "robot's assignment; under noise every plan goes in the lowest-id robot's "
-                   "frame (slot and frame agreement; robot and launch --agree do the same)")
+    add_agree_argument(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

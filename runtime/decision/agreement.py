@@ -58,13 +58,64 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from runtime.conditions import MAX_LATENCY_STEPS, Conditions
 from runtime.types import Array, IntArray
 
-__all__ = ["HEARD_STEPS", "Heard", "Hearing", "SlotAgreement", "is_permutation"]
+__all__ = ["AGREE_MODES", "DEFAULT_AGREE", "HEARD_STEPS", "Heard", "Hearing", "SlotAgreement",
+           "add_agree_argument", "agree_mode", "hears", "is_permutation"]
+
+AGREE_MODES = ("off", "frame", "slots")
+"""What robots tell each other (``--agree MODE``): nothing; under noise the leader its plan's
+frame, which the others plan in (one message a step, the leader's); or under imperfect
+sensing every robot its slot and the leader its assignment and frame too (n (n - 1)
+deliveries a step)."""
+DEFAULT_AGREE = "frame"
+"""What robots tell each other unless asked otherwise: the leader's frame, under noise."""
+
+
+LEAD_SLACK_STEPS = 10
+"""Steps past twice its plan's the leader goes by the frame it tells
+(:meth:`SlotAgreement.lead_due`)."""
+
+
+def agree_mode(value: bool | str | None) -> str:
+    """A mode of :data:`AGREE_MODES` from ``value``: True is ``slots`` (a bare ``--agree``),
+    False and None ``off``; ValueError for anything else."""
+    if value is None or value is False:
+        return "off"
+    if value is True:
+        return "slots"
+    if value not in AGREE_MODES:
+        raise ValueError(f"agree must be one of {', '.join(AGREE_MODES)}, got {value!r}")
+    return str(value)
+
+
+def add_agree_argument(parser: Any, who: str = "the robots") -> None:
+    """``--agree [MODE]`` on ``parser`` (an argparse parser or group): the mode of
+    :data:`AGREE_MODES`, :data:`DEFAULT_AGREE` unless given, ``slots`` when bare."""
+    parser.add_argument(
+        "--agree", nargs="?", const="slots", default=DEFAULT_AGREE, choices=AGREE_MODES,
+        metavar="MODE",
+        help=f"what {who} tell each other: 'frame' (the default): under noisy --conditions "
+        "the lowest-id robot tells its plan's frame each step (robot/<id>/slots) and every "
+        "robot plans in it, one frame for the team; 'slots' (a bare --agree): under "
+        "imperfect --conditions every robot also tells the slot it goes by, the lowest-id "
+        "robot its whole assignment, and a robot that hears a peer claim its own slot goes "
+        "by that assignment (n (n - 1) messages a step); 'off': nothing")
+
+
+def hears(mode: bool | str | None, conditions: Conditions) -> bool:
+    """Whether robots under ``conditions`` that agree as ``mode`` tell each other anything:
+    slots under imperfect sensing, the frame under noise only (exact views, late or lost,
+    already give every robot the same frame)."""
+    m = agree_mode(mode)
+    if m == "slots":
+        return not conditions.sensing_perfect
+    return m == "frame" and conditions.noise_m > 0.0
 
 HEARD_STEPS = MAX_LATENCY_STEPS + 12
 """A claim told longer ago than this (steps) is too old to say anything and is not compared."""
@@ -113,6 +164,8 @@ class SlotAgreement:
         """(2,) m the plan frame this robot tells as the leader (None: none yet)."""
         self.heard_frame = False
         """Whether the last step's plan went in the leader's frame, as heard."""
+        self._land: tuple[Array, int] | None = None  # the leader's landing frame and its steps
+        self._lead_k0: float | None = None  # the leader's plan's steps at its first step
 
     def lead_frame(self, planned: Array) -> Array:
         """The leader's plan frame (2,) m under noise, which it goes by and tells: the mean
@@ -123,6 +176,34 @@ class SlotAgreement:
         self._frame_count += 1
         self.told_frame = self._frame_sum / self._frame_count
         return self.told_frame.copy()
+
+    def lead_due(self, steps_left: float) -> bool:
+        """Whether the leader, whose plan has ``steps_left`` steps left this step, has led
+        long enough that its team, had it followed, would stand formed: twice its plan's
+        steps from the pattern's first step, and :data:`LEAD_SLACK_STEPS` more. From then on
+        it lands where the team's core stands (:meth:`land_frame`)."""
+        if self._lead_k0 is None:
+            self._lead_k0 = steps_left
+        return self._frame_count > 2.0 * self._lead_k0 + LEAD_SLACK_STEPS
+
+    def land_frame(self, core: Array, weight: Any, gate: float) -> Array:
+        """The leader's frame (2,) m for its plan's last steps: the frame its team's core
+        stands in (``core``, :func:`runtime.decision.settle.core_frame` of its view), averaged
+        from the frame it told (the mean of each step's, ``weight(k)`` of the k-th, one that
+        comes ``gate`` m or more off moving it at once): where the others went by the
+        leader's frame their core stands in it and nothing moves; where they never heard it,
+        the leader lands in theirs."""
+        if self._land is None:
+            self._land = (np.array(self.told_frame if self.told_frame is not None else core,
+                                   dtype=np.float64), 0)
+        prev, k = self._land
+        c = np.asarray(core, dtype=np.float64)
+        off = math.hypot(*(c - prev).tolist()) / gate if gate > 0.0 else math.inf
+        g = float(weight(k + 1))
+        g = g + (1.0 - g) * min(1.0, off * off)
+        m = prev + g * (c - prev)
+        self._land = (m, k + 1)
+        return m.copy()
 
     def follow_frame(self, heard: Heard | None, own: Array, within_m: float) -> Array | None:
         """The plan frame (2,) m a robot other than the leader goes by under noise: the
@@ -210,13 +291,14 @@ class Hearing:
         arrive = self._rng.random((E * n, n)) >= self.loss if self.loss > 0 else np.ones(
             (E * n, n), dtype=bool)
         told = np.repeat(slots, n, axis=0)  # (E n, n): row b hears its team's claims
+        lead_arrives = arrive[:, 0].copy()  # the leader's message, claim or not
         arrive &= told >= 0
         self.claims[arrive] = told[arrive]
         self.claim_steps[arrive] = src
         lead = arrive[:, 0] & (np.repeat(leaders, n, axis=0) >= 0).all(axis=1)
         self.leader[lead] = np.repeat(leaders, n, axis=0)[lead]
         self._has_leader |= lead
-        framed = arrive[:, 0] & np.isfinite(np.repeat(frames, n, axis=0)).all(axis=1)
+        framed = lead_arrives & np.isfinite(np.repeat(frames, n, axis=0)).all(axis=1)
         self.frame[framed] = np.repeat(frames, n, axis=0)[framed]
 
     def heard(self, b: int) -> Heard:

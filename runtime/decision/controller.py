@@ -34,9 +34,11 @@ from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decisi
 from runtime.decision.rules import PlanFrame, pace_velocity, plan_targets
 from runtime.decision.safety import OrcaParams, landing, make_filter
 from runtime.decision.settle import (
+    CORE_M,
     Lander,
     Settle,
     centroid_targets,
+    core_frame,
     landing_steps,
     seen_team,
     shared_slots,
@@ -308,10 +310,18 @@ class Controller:
             lambda team: self._cc[shared_slots(team, self._cc)])
         if self._heard is not None and self._lander.settle.sigma_m > 0.0:  # one frame for all
             if self._me == 0:
-                m = self.agreement.lead_frame(self._planned_centroid(pos, points))
+                told: Array | None = self.agreement.lead_frame(
+                    self._planned_centroid(pos, points))
             else:  # a frame no plan of this team could have is not taken
                 told = self.agreement.follow_frame(self._heard, m, self._frame_reach(pos))
-                m = m if told is None else told
+            if told is not None:
+                target, k = centroid_targets(pos, points, told, self.world)
+                if self._me != 0 or not self.agreement.lead_due(float(k)):
+                    return target, k
+                st = self._lander.settle  # the leader lands where its team's core stands
+                team = seen_team(pos, self._me, self._ref)
+                m = self.agreement.land_frame(core_frame(team, points, CORE_M), st.centroid_weight,
+                                              float(st.centroid_gate(len(pos))))
         return centroid_targets(pos, points, m, self.world)
 
     def _frame_reach(self, team: Array) -> float:

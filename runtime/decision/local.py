@@ -23,7 +23,7 @@ import numpy as np
 from runtime.brain.brain import Brain
 from runtime.conditions import Conditions
 from runtime.core.orca import GUARD_REF_COLUMNS
-from runtime.decision.agreement import Hearing
+from runtime.decision.agreement import Hearing, agree_mode, hears
 from runtime.decision.controller import Controller
 from runtime.decision.estimator import PeerTracker
 from runtime.decision.safety import (
@@ -277,17 +277,20 @@ class LocalDecisions:
     ``safety`` None: the speed clamp only; else its margin is widened for ``conditions``.
     ``naive``: a robot that ignores what it knows of its sensing (no tracker for its filter,
     no widened margin, no damped landing): the pipeline as it ran before any of these, for
-    comparison (``benchmarks/conditions.py``'s ``+naive`` brains). ``agree``: under imperfect
-    sensing every robot tells its slot and the leader its assignment, heard through
-    :class:`runtime.decision.agreement.Hearing`, and a robot that hears a peer claim its slot
-    goes by the leader's (:mod:`runtime.decision.agreement`; off by default, as for a robot
-    process and ``launch``, which agree with ``--agree``).
+    comparison (``benchmarks/conditions.py``'s ``+naive`` brains). ``agree``, a mode of
+    :data:`runtime.decision.agreement.AGREE_MODES` (True: ``slots``, False: ``off``): under
+    noise the leader tells its plan's frame and every robot plans in it (``frame``); with
+    ``slots`` under imperfect sensing every robot tells its slot and the leader its
+    assignment too, and a robot that hears a peer claim its slot goes by the leader's; heard
+    through :class:`runtime.decision.agreement.Hearing` (:mod:`runtime.decision.agreement`;
+    ``off`` here, where the training world builds each robot's row; ``eval``, ``robot`` and
+    ``launch`` agree on the frame unless told otherwise, ``--agree``).
     """
 
     def __init__(self, brain: Brain, n_envs: int, n_robots: int, conditions: Conditions,
                  *, estimator: bool = False, safety: OrcaParams | None = OrcaParams(),  # noqa: B008
                  seed: int = 0, world: WorldConfig = DEFAULT_WORLD,
-                 naive: bool = False, agree: bool = False) -> None:
+                 naive: bool = False, agree: bool | str = "off") -> None:
         E, n = n_envs, n_robots
         self.n_envs, self.n_robots = E, n
         self.conditions = conditions
@@ -300,8 +303,12 @@ class LocalDecisions:
         self.controllers = [Controller(brain, world, self.safety, settle,
                                        conditions.diff_turn_rps)
                             for _ in range(E * n)]
+        mode = agree_mode(agree)
         self.hearing = (Hearing(conditions, E, n, seed)
-                        if agree and not naive and not conditions.sensing_perfect else None)
+                        if hears(mode, conditions) and not naive else None)
+        self.tells_slots = self.hearing is not None and mode == "slots"
+        """Whether every robot tells its slot and the leader its assignment (``slots``), or
+        only the leader its frame (``frame``)."""
         self.step = 0
         self._follow: Array | None = None  # (E n, n, 2) each robot's plan of the last step
         self.last_view: Array | None = None
@@ -349,7 +356,10 @@ class LocalDecisions:
             told = self.controllers[e * n].agreement.told_frame
             if told is not None:
                 frames[e] = told
-        if hearing is not None:
+        if hearing is not None and self.tells_slots:
             hearing.tell(self.step, slots, leaders, frames)
+        elif hearing is not None:  # the leader's frame alone
+            none = np.full((E, n), -1, dtype=np.int64)
+            hearing.tell(self.step, none, none, frames)
         self.step += 1
         return out, slots, changed

@@ -379,6 +379,22 @@ def identity_from_args(args: argparse.Namespace, role: Role, swarm: str) -> Iden
         raise ZenohSetupError(str(e)) from None
 
 
+def tells_each_other(args: argparse.Namespace) -> bool:
+    """Whether a robot of these options tells its team what it agrees on and hears theirs
+    (``--agree`` under its ``--conditions``, :func:`runtime.decision.agreement.hears`): it
+    then enforces every robot's access rules, so that each may tell its own only."""
+    from runtime.conditions import parse_conditions
+    from runtime.decision.agreement import hears
+
+    agree = getattr(args, "agree", None)
+    if agree is None:
+        return False
+    try:
+        return hears(agree, parse_conditions(getattr(args, "conditions", None) or "perfect"))
+    except (InputError, ValueError):
+        return True  # refused before it runs; the stricter rules meanwhile
+
+
 def config_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.Config:
     """The Zenoh config of a process from the options of :func:`add_zenoh_arguments`."""
     ident = identity_from_args(args, role, swarm)
@@ -394,8 +410,8 @@ def config_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.
             listen = d_listen
     return make_config(args.zenoh_mode, connect, listen, args.zenoh_config,
                        getattr(args, "multicast", None), getattr(args, "zenoh_cfg", None) or (),
-                       ident, hears_robots=bool(getattr(args, "ros2", None)
-                                                or getattr(args, "agree", False)))
+                       ident, hears_robots=bool(getattr(args, "ros2", None))
+                       or tells_each_other(args))
 
 
 def open_session_from_args(args: argparse.Namespace, role: Role, swarm: str) -> zenoh.Session:

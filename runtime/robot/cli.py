@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 from runtime.brain.signing import TrustedKeys, default_trust
 from runtime.conditions import PERFECT, Conditions, parse_conditions
+from runtime.decision.agreement import DEFAULT_AGREE, add_agree_argument
 from runtime.decision.patterns import PatternError, make_pattern
 from runtime.decision.safety import OrcaParams, uncertainty_params
 from runtime.errors import InputError
@@ -55,10 +56,11 @@ class RobotConfig:
     """Seeds the simulated sensing (with the robot id)."""
     estimator: bool = False
     """Track peers (``runtime.decision.estimator``) and decide on the estimates."""
-    agree: bool = False
-    """Under imperfect sensing, tell the team the slot it goes by each step and hear theirs
-    (:mod:`runtime.decision.agreement`): a robot that hears a peer claim its slot goes by the
-    leader's assignment."""
+    agree: str = DEFAULT_AGREE
+    """What it tells its team and hears of theirs (:data:`runtime.decision.agreement.AGREE_MODES`):
+    under noise the leader's plan frame, which every robot plans in (``frame``); with ``slots``
+    under imperfect sensing also each robot's slot, and a robot that hears a peer claim its
+    slot goes by the leader's assignment; ``off``: nothing."""
     view_every: int = VIEW_EVERY
     """Under imperfect sensing, publish the team as perceived (a
     :class:`runtime.wire.messages.View`) for one decision every this many steps (0: never)."""
@@ -157,13 +159,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cg.add_argument("--estimator", action="store_true",
                     help="track each peer (alpha-beta filter, latency compensation) and decide "
                     "on the estimates")
-    cg.add_argument("--agree", action="store_true",
-                    help="under imperfect --conditions, tell the team the slot this robot goes "
-                    "by each step (robot/<id>/slots; the lowest-id robot its whole assignment "
-                    "and, under noise, its plan's frame) and hear theirs; on hearing a peer "
-                    "claim its own slot it goes by the lowest-id robot's assignment, and under "
-                    "noise its plan goes in that robot's frame (slot and frame agreement: "
-                    "shorter transitions and fewer steps under noise)")
+    add_agree_argument(cg, "the team's robots")
     cg.add_argument("--view-every", type=int, default=VIEW_EVERY, metavar="N",
                     help="under imperfect --conditions, publish the team as this robot perceived "
                     "it (robot/<id>/view) for one decision every N steps, so the log holds "

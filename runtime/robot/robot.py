@@ -101,6 +101,7 @@ import zenoh
 from runtime import heap
 from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
+from runtime.decision.agreement import agree_mode, hears
 from runtime.decision.controller import Controller
 from runtime.decision.local import Perception, Seen
 from runtime.decision.patterns import PatternError
@@ -235,9 +236,10 @@ class Robot:
         self._view_step = -math.inf  # the step of the last view staged
         self._view: View | None = None  # staged by the decision, sent after its command
         self.slot_talk = (SlotTalk(self.id, cfg.conditions, (cfg.sensing_seed, self.id),
-                                   self._drop)
-                          if cfg.agree and not cfg.conditions.sensing_perfect else None)
-        """--agree under imperfect sensing: what it tells and hears of its team's slots."""
+                                   self._drop, slots=agree_mode(cfg.agree) == "slots")
+                          if hears(cfg.agree, cfg.conditions) else None)
+        """What it tells and hears of its team's slots and frame (``--agree``, under noise by
+        default)."""
         self._slots_pub: zenoh.Publisher | None = None
         self._slots: Slots | None = None  # staged by the decision, sent before its command
 

@@ -1,9 +1,11 @@
 """A robot process's side of the slot agreement over Zenoh: :class:`SlotTalk`.
 
-``patternrl robot --agree`` under imperfect sensing tells its team, each step it decides,
-the slot it goes by (a :class:`runtime.wire.messages.Slots` on ``robot/<id>/slots``; the
-team's leader, its lowest id, its whole assignment and its plan's frame too) and hears theirs
-(``robot/*/slots``). What it hears goes through the same :class:`Hearing` as the robots of
+``patternrl robot --agree slots`` under imperfect sensing tells its team, each step it
+decides, the slot it goes by (a :class:`runtime.wire.messages.Slots` on
+``robot/<id>/slots``; the team's leader, its lowest id, its whole assignment and under noise
+its plan's frame too) and hears theirs (``robot/*/slots``). ``--agree frame``, the default,
+under noise: only the leader tells (its assignment and frame), and every robot hears its
+frame. What it hears goes through the same :class:`Hearing` as the robots of
 ``patternrl eval --agree`` (:mod:`runtime.decision.agreement`): the message told at step
 ``t - max(1, latency_steps)`` is heard at step ``t``, each lost with the simulated
 conditions' chance, the last heard kept; a message that comes later than that over the
@@ -46,8 +48,12 @@ class SlotTalk:
     """
 
     def __init__(self, robot_id: int, conditions: Conditions, seed: Sequence[int],
-                 drop: Callable[[str, str], None]) -> None:
+                 drop: Callable[[str, str], None], slots: bool = True) -> None:
+        """``slots``: every robot tells its slot and hears its peers' claims and the leader's
+        assignment (``--agree slots``); else only the leader tells, and only its frame is
+        heard (``--agree frame``)."""
         self.robot_id = robot_id
+        self.slots = slots
         self.conditions = conditions
         self.delay = max(1, conditions.latency_steps)
         self._seed = tuple(seed)
@@ -112,10 +118,11 @@ class SlotTalk:
                 if msg is None or msg.pattern_version != version:
                     continue
                 self.heard_messages += 1
-                if msg.slot != NO_SLOT and msg.slot < n:
+                if self.slots and msg.slot != NO_SLOT and msg.slot < n:
                     claims[0, k] = msg.slot
                 if k == 0 and msg.ids.shape[0] == n and tuple(msg.ids.tolist()) == team:
-                    leader[0] = msg.assignment
+                    if self.slots:
+                        leader[0] = msg.assignment
                     if msg.frame is not None:
                         frame[0] = msg.frame
         self._hearing.tell(src, claims, leader, frame)
@@ -123,15 +130,18 @@ class SlotTalk:
         return self._hearing.heard(me)
 
     def told(self, step: int, version: int, ids: Sequence[int], me: int,
-             slots: IntArray | None, frame: Array | None = None) -> Slots:
+             slots: IntArray | None, frame: Array | None = None) -> Slots | None:
         """The message the robot sends for its decision of ``step``: its slot (``slots``
         None or -1: none), and from the leader (row 0) the whole assignment and its plan's
-        ``frame`` (2,) m (None: none)."""
+        ``frame`` (2,) m (None: none). Telling only the frame, the leader's message where it
+        has a frame, and None (nothing to send) from the others."""
+        told = None if frame is None or not np.isfinite(frame).all() else (
+            float(frame[0]), float(frame[1]))
+        if not self.slots and (me != 0 or told is None):
+            return None
         if slots is None or len(slots) != len(ids) or int(slots[me]) < 0:
-            return Slots(self.robot_id, step, version, NO_SLOT)
+            return None if not self.slots else Slots(self.robot_id, step, version, NO_SLOT)
         if me == 0:
-            told = None if frame is None or not np.isfinite(frame).all() else (
-                float(frame[0]), float(frame[1]))
             return Slots(self.robot_id, step, version, int(slots[0]), np.asarray(ids),
                          np.asarray(slots), told)
         return Slots(self.robot_id, step, version, int(slots[me]))

@@ -69,6 +69,7 @@ from typing import IO, Any
 from runtime import heap
 from runtime.brain.signing import run_operator_key
 from runtime.conditions import Conditions
+from runtime.decision.agreement import DEFAULT_AGREE
 from runtime.decision.patterns import PatternError, make_pattern, pattern_label
 from runtime.decision.safety import pattern_guard_note
 from runtime.errors import InputError
@@ -183,8 +184,8 @@ class Robots:
                 cmd += ["--conditions", cond, "--sensing-seed", str(args.seed)]
             if getattr(args, "estimator", False):
                 cmd += ["--estimator"]
-            if getattr(args, "agree", False) and cond != "perfect":
-                cmd += ["--agree"]
+            if cond != "perfect":  # what the robots tell each other (the same default)
+                cmd += ["--agree", getattr(args, "agree", DEFAULT_AGREE)]
             if getattr(args, "ros2", False):  # the robot drives ROS 2 base robot_<id>
                 cmd += ["--ros2", f"robot_{rid}"]
             elif args.mode == "realtime":

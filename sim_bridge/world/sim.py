@@ -47,6 +47,7 @@ from types import FrameType
 
 from runtime import heap
 from runtime.conditions import parse_conditions
+from runtime.decision.agreement import add_agree_argument
 from runtime.decision.patterns import PatternError, make_pattern
 from runtime.errors import InputError
 from runtime.net.session import ZenohSetupError, add_zenoh_arguments, open_session_from_args
@@ -123,11 +124,7 @@ def add_world_arguments(p: argparse.ArgumentParser, record_help: str = "write th
                         "sensing fields (default perfect)")
     p.add_argument("--estimator", action="store_true",
                    help="launch: every robot tracks its peers and decides on the estimates")
-    p.add_argument("--agree", action="store_true",
-                   help="launch, under imperfect --conditions: every robot tells the others "
-                        "the slot it goes by each step and goes by the lowest-id robot's "
-                        "assignment when it hears a peer claim its own, and under noise plans "
-                        "in that robot's frame (slot and frame agreement)")
+    add_agree_argument(p, "launch's robots")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--ros2", action="store_true",
                    help="the robots as a ROS 2 fleet: /robot_<i>/odom out, /robot_<i>/cmd_vel "

@@ -11,10 +11,12 @@ from support import ROOT, load_benchmark
 def test_the_decision_cost_rises_with_the_team_and_the_leaders_message_with_it() -> None:
     bench = load_benchmark("agreement")
     rows = bench.decision_cost(calls=30)
-    assert [r["n"] for r in rows] == [10, 25, 50, 100]
+    sizes = [10, 25, 50, 100]
+    assert [(r["mode"], r["n"]) for r in rows] == [(m, n) for m in ("frame", "slots")
+                                                   for n in sizes]
     assert all(r["median_us"] > 0 for r in rows)
-    assert [r["deliveries_per_step"] for r in rows] == [90, 600, 2450, 9900]
-    assert [r["leader_bytes"] for r in rows] == [30 + 6 * n for n in (10, 25, 50, 100)]
+    assert [r["deliveries_per_step"] for r in rows] == [9, 24, 49, 99, 90, 600, 2450, 9900]
+    assert [r["leader_bytes"] for r in rows] == [30 + 6 * n + 16 for n in sizes] * 2
 
 
 def test_transitions_run_each_way_on_the_same_episodes() -> None:
@@ -22,7 +24,7 @@ def test_transitions_run_each_way_on_the_same_episodes() -> None:
     rows = bench.transitions(episodes=1)
     assert len(rows) == len(bench.BRAINS) * len(bench.CASES) * len(bench.TRANSITIONS)
     for r in rows:
-        for way in ("own", "agree"):
+        for way in ("off", "frame", "slots"):
             assert 0.0 <= r[way]["success"] <= 1.0 and r[way]["collisions"] >= 0
 
 

@@ -160,7 +160,7 @@ def test_robots_that_agree_hold_one_slot_with_two_less_often() -> None:
 def test_the_agreement_is_off_in_the_perfect_world_and_shortens_a_noisy_transition() -> None:
     brain = load_brain("rule:frame-balanced")
 
-    def run(case: str, agree: bool) -> tuple[float, bool, float]:
+    def run(case: str, agree: bool) -> tuple[float, str, float]:
         r = evaluate_brain(brain, "cross", 10, 6, seed=5, conditions=parse_conditions(case),
                            estimator=True, progress=False, start_pattern="circle",
                            agree=agree)
@@ -168,6 +168,6 @@ def test_the_agreement_is_off_in_the_perfect_world_and_shortens_a_noisy_transiti
         return r.mean_steps, r.agree, r.steps_ratio
 
     steps, on, _ = run("perfect", True)
-    assert not on and steps == run("perfect", False)[0]
+    assert on == "off" and steps == run("perfect", False)[0]
     noisy, on, _ = run("perfect,noise_m=0.05", True)
-    assert on and noisy < run("perfect,noise_m=0.05", False)[0]
+    assert on == "slots" and noisy < run("perfect,noise_m=0.05", False)[0]

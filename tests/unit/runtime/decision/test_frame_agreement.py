@@ -4,6 +4,7 @@ and when they take it, and a noisy team that goes by one frame reaching its patt
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from runtime.brain.brain import load_brain
 from runtime.conditions import parse_conditions
@@ -62,6 +63,13 @@ def test_the_leaders_frame_is_heard_late_kept_when_lost_and_forgotten_on_restart
     assert h.heard(2).frame is not None and h.heard(2).frame.tolist() == [1.0, 2.0]
     h.restart(np.array([0]))
     assert h.heard(2).frame is None
+    alone = Hearing(parse_conditions("perfect"), 1, 3, seed=4)  # the frame alone: no slots
+    none = np.full((1, 3), -1)
+    alone.tell(0, none, none, np.array([[5.0, 6.0]]))
+    alone.hear(1)
+    got = alone.heard(2)
+    assert got.frame is not None and got.frame.tolist() == [5.0, 6.0]
+    assert got.leader is None and (got.claims == -1).all()
 
 
 def plan_frames(agree: bool, steps: int = 6) -> list[np.ndarray]:
@@ -104,10 +112,31 @@ def test_a_noisy_team_that_agrees_on_its_frame_forms_sooner() -> None:
     brain = load_brain("rule:frame-balanced")
     c = parse_conditions("realistic")
 
-    def run(agree: bool) -> float:
+    def run(agree: str) -> float:
         r = evaluate_brain(brain, "random", 25, 8, seed=41, conditions=c, estimator=True,
                            progress=False, agree=agree)
         assert r.success_rate == 1.0 and r.collisions == 0 and r.agree == agree
         return r.steps_ratio
 
-    assert run(True) < run(False) - 0.02
+    assert run("frame") < run("off") - 0.02
+
+
+def test_a_team_that_never_hears_its_leader_still_forms_around_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The leader plans in its own frame, told; robots that never hear it plan in the team's
+    centroid frame. Once its team would have formed had it followed (twice the plan's steps
+    and 10 more), the leader lands where the team's core stands, so the team still forms,
+    later, where a leader left in a frame of its own would never form with it."""
+    made = LocalDecisions.__init__
+
+    def deaf(self: LocalDecisions, *a: object, **k: object) -> None:
+        made(self, *a, **k)  # type: ignore[arg-type]
+        assert self.hearing is not None and not self.tells_slots
+        self.hearing.loss = 1.0  # every message lost; the sensing as it was
+
+    monkeypatch.setattr(LocalDecisions, "__init__", deaf)
+    r = evaluate_brain(load_brain("rule:frame-balanced"), "heart", 10, 20, seed=77,
+                       conditions=parse_conditions("realistic"), estimator=True,
+                       progress=False, agree="frame")
+    assert r.agree == "frame" and r.formed_rate == 1.0 and r.collisions == 0
+    assert r.success_rate >= 0.8 and r.steps_ratio < 3.0  # left in its own: 20 %, 4.5x

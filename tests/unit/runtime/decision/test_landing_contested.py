@@ -36,6 +36,6 @@ def test_robots_that_disagree_under_noise_no_longer_collide_on_a_short_transitio
     circle -> cross, ``rule:frame-balanced`` with the tracker, no slot agreement)."""
     r = evaluate_brain(load_brain("rule:frame-balanced"), "cross", 10, 40, seed=11,
                        conditions=parse_conditions("noise_m=0.05"), estimator=True,
-                       progress=False, start_pattern="circle")
+                       progress=False, start_pattern="circle", agree="off")
     assert r.collisions == 0 and r.min_separation_m >= 0.2
     assert r.success_rate == 1.0

@@ -7,8 +7,11 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+import pytest
 
 from runtime.conditions import PERFECT, parse_conditions
+from runtime.decision.agreement import AGREE_MODES, hears
+from runtime.net.session import tells_each_other
 from runtime.robot.cli import add_arguments, config_from_args
 from runtime.robot.slot_talk import KEEP_STEPS, SlotTalk
 from runtime.wire import keys
@@ -142,7 +145,46 @@ def test_the_agree_option() -> None:
     args = p.parse_args(["--swarm", SWARM, "--id", "1", "--brain", "rule:assign", "--agree",
                          "--conditions", "realistic"])
     cfg, _ = config_from_args(args, DEFAULT_WORLD)
-    assert cfg.agree and cfg.conditions != PERFECT
+    assert cfg.agree == "slots" and cfg.conditions != PERFECT
     cfg, _ = config_from_args(p.parse_args(["--swarm", SWARM, "--id", "1", "--brain",
                                             "rule:assign"]), DEFAULT_WORLD)
-    assert not cfg.agree
+    assert cfg.agree == "frame"  # the default
+    for mode in AGREE_MODES:
+        got = p.parse_args(["--swarm", SWARM, "--id", "1", "--brain", "rule:assign",
+                            "--agree", mode])
+        assert config_from_args(got, DEFAULT_WORLD)[0].agree == mode
+    with pytest.raises(SystemExit):  # argparse: a mode it does not know
+        p.parse_args(["--swarm", SWARM, "--id", "1", "--brain", "rule:assign", "--agree", "x"])
+
+
+@pytest.mark.parametrize(("argv", "conditions", "tells"), [
+    ([], "realistic", True),  # the leader's frame, under noise
+    ([], "perfect", False),
+    ([], "perfect,latency_steps=2", False),  # exact views: one frame without telling
+    (["--agree"], "perfect,latency_steps=2", True),  # slots under any imperfect sensing
+    (["--agree", "off"], "realistic", False),
+])
+def test_who_tells_and_enforces_every_robots_rules(argv: list[str], conditions: str,
+                                                    tells: bool) -> None:
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args(["--swarm", SWARM, "--id", "1", "--brain", "rule:assign",
+                         "--conditions", conditions, *argv])
+    assert tells_each_other(args) is tells
+    cfg, _ = config_from_args(args, DEFAULT_WORLD)
+    assert hears(cfg.agree, cfg.conditions) is tells
+
+
+def test_telling_the_frame_alone_the_leader_tells_and_its_frame_is_all_that_is_heard() -> None:
+    drops = Drops()
+    follower = SlotTalk(2, parse_conditions("realistic,loss=0"), (0, 2), drops, slots=False)
+    assert follower.told(3, 1, TEAM, 1, np.array([2, 0, 1]), np.array([1.0, 2.0])) is None
+    lead = SlotTalk(0, parse_conditions("realistic,loss=0"), (0, 0), drops, slots=False)
+    assert lead.told(3, 1, TEAM, 0, np.array([2, 0, 1]), None) is None  # no frame yet
+    msg = lead.told(3, 1, TEAM, 0, np.array([2, 0, 1]), np.array([1.0, 2.0]))
+    assert msg is not None and msg.frame == (1.0, 2.0) and msg.assignment.tolist() == [2, 0, 1]
+    follower.take(keys.slots_key(SWARM, 0), encode_slots(msg))
+    tell(follower, 5, 3, 1)  # robot 5 claims robot 2's own slot: not heard in this mode
+    h = follower.heard(4, TEAM, 1, version=1)
+    assert h.frame is not None and h.frame.tolist() == [1.0, 2.0]
+    assert h.leader is None and (h.claims == -1).all() and not drops.why
