@@ -259,8 +259,11 @@ class Robot:
                 s.declare_publisher(keys.view_key(sw, self.id), express=True)
             )
         if self.slot_talk is not None:  # before the poses: a step's decision hears them
+            # batched with the command that follows it (in order, so still before it): a
+            # third express publisher beside the command's and the view's lost every view
+            # after the first on the world's side
             self._slots_pub = z.enter_context(
-                s.declare_publisher(keys.slots_key(sw, self.id), express=True))
+                s.declare_publisher(keys.slots_key(sw, self.id), express=False))
             z.enter_context(s.declare_subscriber(keys.all_slots(sw), direct(self._on_slots)))
         z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
         # per-robot poses until the first all-poses message (then undeclared). In realtime

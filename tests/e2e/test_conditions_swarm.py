@@ -100,7 +100,7 @@ def test_a_late_team_stalled_on_two_robots_held_to_each_others_slots_comes_loose
 def test_the_log_keeps_what_each_robot_perceived_and_replay_measures_its_error(
     procs: Any, tmp_path: Path, kit: Any, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    n, every = 4, 5
+    n, every = 4, 2
     swarm, port, log = f"e2e-view-{os.getpid()}", kit.free_port(), tmp_path / "view.mcap"
     world = procs.world(swarm, port, "--robots", str(n), "--patterns", "line", "--seed", "5",
                         "--record", str(log), "--json", "--wait-robots-s", "60",
@@ -167,11 +167,14 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
     assert all(p["collisions"] == 0 for p in result["phases"])
 
     per_robot: dict[int, int] = {}
+    views: dict[int, int] = {}
     assignments = []
     framed = 0
     with open(log, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages():
             k = keys.parse_key(channel.topic)
+            if k is not None and k.kind == keys.VIEW and k.robot_id is not None:
+                views[k.robot_id] = views.get(k.robot_id, 0) + 1
             if k is None or k.kind != keys.SLOTS:
                 continue
             assert k.robot_id is not None
@@ -182,6 +185,8 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
                 framed += len(m.frame) == 2
     steps = result["steps"]
     assert sorted(per_robot) == list(range(6))
+    # every robot's views go out beside its slots, one every 10 steps (--view-every)
+    assert sorted(views) == list(range(6)) and min(views.values()) >= steps // 10 - 1, views
     assert all(c >= steps // 2 for c in per_robot.values()), (per_robot, steps)
     assert assignments and all(ids == list(range(6)) and a == list(range(6))
                                for ids, a in assignments if ids)
