@@ -46,11 +46,15 @@ landing (:meth:`runtime.decision.controller.Controller._contested`).
 Measured (``benchmarks/agreement.py``, ``benchmarks/results/agreement.txt``;
 ``rule:frame-balanced`` + the tracker, 10 robots, from a formed circle to the cross, 200
 episodes): the realistic preset 3.78x -> 2.45x the steps bound, 5 cm of noise 2.68x -> 1.59x,
-0 collisions both ways; from random starts n = 50 realistic 1.325x -> 1.312x. Taking the
-leader's assignment always, conflict or not, cost n = 50 0.027x: its assignment is a step late
-and solved on the leader's view of each robot, where the robot's own is exact. Each robot hears
-n - 1 messages a step: on one 2-core machine simulating a whole swarm of 50 a launch took 3.8x
-as long, so robots agree only when asked (``--agree``).
+0 collisions both ways (both without the leader's frame). Taking the leader's assignment always,
+conflict or not, cost n = 50 0.027x: its assignment is a step late and solved on the leader's
+view of each robot, where the robot's own is exact. With slots each robot hears n - 1
+messages a step: on one 2-core machine simulating a whole swarm of 50 a launch took 3.8x as
+long, so robots tell their slots only when asked (``--agree slots``); the leader's frame alone
+is one message a step and on by default under noise (``--agree frame``): from random starts,
+``benchmarks/conditions.py``'s seeds, n = 50 realistic 1.325x (``--agree off``) -> 1.293x
+(``frame``) -> 1.268x (``slots``), n = 10 1.188x -> 1.145x
+(``benchmarks/results/conditions_leader_frame.txt``).
 """
 
 from __future__ import annotations
