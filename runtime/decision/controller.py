@@ -310,13 +310,14 @@ class Controller:
             lambda team: self._cc[shared_slots(team, self._cc)])
         if self._heard is not None and self._lander.settle.sigma_m > 0.0:  # one frame for all
             if self._me == 0:
+                planned = self._planned_centroid(pos, points)
                 told: Array | None = self.agreement.lead_frame(
-                    self._planned_centroid(pos, points))
+                    planned, float(centroid_targets(pos, points, planned, self.world)[1]))
             else:  # a frame no plan of this team could have is not taken
                 told = self.agreement.follow_frame(self._heard, m, self._frame_reach(pos))
             if told is not None:
                 target, k = centroid_targets(pos, points, told, self.world)
-                if self._me != 0 or not self.agreement.lead_due(float(k)):
+                if self._me != 0 or not self.agreement.lead_due():
                     return target, k
                 st = self._lander.settle  # the leader lands where its team's core stands
                 team = seen_team(pos, self._me, self._ref)

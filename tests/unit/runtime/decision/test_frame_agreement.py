@@ -8,7 +8,13 @@ import pytest
 
 from runtime.brain.brain import load_brain
 from runtime.conditions import parse_conditions
-from runtime.decision.agreement import Heard, Hearing, SlotAgreement
+from runtime.decision.agreement import (
+    FRAME_MIN_STEPS,
+    LEAD_SLACK_STEPS,
+    Heard,
+    Hearing,
+    SlotAgreement,
+)
 from runtime.decision.local import LocalDecisions
 from runtime.decision.patterns import make_pattern
 from runtime.world_config import DEFAULT_WORLD
@@ -22,15 +28,34 @@ def with_frame(frame: tuple[float, float] | None) -> Heard:
 
 def test_the_leader_tells_the_mean_of_its_frames_and_forgets_it_on_reset() -> None:
     a = SlotAgreement()
-    assert a.told_frame is None
-    assert a.lead_frame(np.array([1.0, 2.0])).tolist() == [1.0, 2.0]
-    assert a.lead_frame(np.array([3.0, 0.0])).tolist() == [2.0, 1.0]
-    got = a.lead_frame(np.array([2.0, 4.0]))
-    assert got.tolist() == [2.0, 2.0] and a.told_frame is not None
+    long = float(FRAME_MIN_STEPS)
+    assert a.told_frame is None and not a.lead_due()
+    assert_frame(a.lead_frame(np.array([1.0, 2.0]), long), [1.0, 2.0])
+    assert_frame(a.lead_frame(np.array([3.0, 0.0]), 1.0), [2.0, 1.0])  # the first step's plan
+    got = a.lead_frame(np.array([2.0, 4.0]), 1.0)
+    assert_frame(got, [2.0, 2.0])
+    assert got is not None and a.told_frame is not None
     got[0] = 9.0  # a copy: what it tells is its own
     assert a.told_frame.tolist() == [2.0, 2.0]
+    for _ in range(2 * FRAME_MIN_STEPS + LEAD_SLACK_STEPS - 3):
+        a.lead_frame(np.array([2.0, 2.0]), 1.0)
+    assert not a.lead_due()  # twice the first plan and the slack: not yet
+    a.lead_frame(np.array([2.0, 2.0]), 1.0)
+    assert a.lead_due()
     a.reset()  # a new pattern or team: a new mean
-    assert a.told_frame is None and a.lead_frame(np.array([5.0, 5.0])).tolist() == [5.0, 5.0]
+    assert a.told_frame is None
+    assert_frame(a.lead_frame(np.array([5.0, 5.0]), long), [5.0, 5.0])
+
+
+def test_a_leader_whose_plan_starts_short_tells_no_frame() -> None:
+    a = SlotAgreement()
+    assert a.lead_frame(np.array([1.0, 2.0]), FRAME_MIN_STEPS - 1.0) is None
+    assert a.lead_frame(np.array([1.0, 2.0]), 40.0) is None  # the first step's plan counts
+    assert a.told_frame is None and not a.lead_due()
+
+
+def assert_frame(got: np.ndarray | None, want: list[float]) -> None:
+    assert got is not None and got.tolist() == want
 
 
 def test_a_robot_takes_the_leaders_frame_heard_within_reach_only() -> None:
