@@ -61,6 +61,7 @@ class SlotTalk:
         self._lock = threading.Lock()
         self._got: dict[int, dict[int, Slots]] = {}  # sender -> step -> its message
         self._team: tuple[int, ...] = ()
+        self._version = -1  # the pattern version heard for
         self._hearing: Hearing | None = None
         self.heard_messages = 0
         """Messages from the team for the pattern held, found for the step each decision
@@ -105,9 +106,11 @@ class SlotTalk:
         of its team's slots for the pattern of ``version``."""
         team = tuple(int(i) for i in ids)
         n = len(team)
-        if team != self._team or self._hearing is None:
-            self._team = team
-            self._hearing = Hearing(self.conditions, 1, n, seed=(*self._seed, n))
+        if team != self._team or version != self._version or self._hearing is None:
+            # another team or pattern: nothing heard of it yet (the last pattern's frame and
+            # claims mean nothing for this one)
+            self._team, self._version = team, version
+            self._hearing = Hearing(self.conditions, 1, n, seed=(*self._seed, n, version))
         src = step - self.delay
         claims = np.full((1, n), -1, dtype=np.int64)
         leader = np.full((1, n), -1, dtype=np.int64)

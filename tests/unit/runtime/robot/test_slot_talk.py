@@ -188,3 +188,14 @@ def test_telling_the_frame_alone_the_leader_tells_and_its_frame_is_all_that_is_h
     h = follower.heard(4, TEAM, 1, version=1)
     assert h.frame is not None and h.frame.tolist() == [1.0, 2.0]
     assert h.leader is None and (h.claims == -1).all() and not drops.why
+
+
+def test_a_new_pattern_forgets_what_was_heard_of_the_last() -> None:
+    t, _ = talk()
+    t.take(keys.slots_key(SWARM, 0), encode_slots(
+        Slots(0, 4, 1, 2, np.array(TEAM), np.array([2, 0, 1]), (3.0, 4.0))))
+    tell(t, 5, 4, 1)
+    h = t.heard(5, TEAM, 1, version=1)
+    assert h.frame is not None and h.leader is not None and h.claims.tolist() == [2, -1, 1]
+    nothing = t.heard(6, TEAM, 1, version=2)  # the next pattern: its frame and slots are new
+    assert nothing.frame is None and nothing.leader is None and (nothing.claims == -1).all()
