@@ -1,4 +1,9 @@
-"""Slot agreement: robots that tell each other their slots settle who goes where.
+"""Agreement: robots that tell each other their plan's frame and their slots.
+
+What robots tell each other is a mode of :data:`AGREE_MODES` (``--agree``): ``frame``, the
+default, under noise the leader its plan's frame and every robot plans in it ("The plan's
+frame" below); ``slots`` every robot its slot too, and the leader its assignment (the slot
+agreement); ``off`` nothing.
 
 Every robot solves the team's assignment on its own view (:mod:`runtime.core.assignment`).
 In the perfect world every view is the same and so is every assignment. Under noise each
@@ -9,7 +14,7 @@ That cost short transitions most: circle -> cross took 3.87x its steps bound und
 realistic preset (10 robots, 20 episodes), 2 to 4 robots of 10 holding a slot another also
 held for the first 6 steps.
 
-The agreement (:class:`SlotAgreement`, one per robot): every step each robot tells its slot
+The slot agreement (:class:`SlotAgreement`, one per robot): every step each robot tells its slot
 (its claim), and the team's leader, the robot with the lowest id (row 0 of a team ordered by
 id), also tells its whole assignment. A robot that hears a peer claim the slot it holds itself
 (two robots going for one slot: they disagree)
