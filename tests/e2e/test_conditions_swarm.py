@@ -199,3 +199,47 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
                 for line in Path(result["robots_log"]).read_text().splitlines()
                 if "frame_steps=" in line]
     assert len(on_frame) == 6 and sorted(on_frame)[1] > 0, on_frame  # all but the leader
+
+
+def test_the_leader_killed_mid_run_the_team_reforms_in_its_next_leaders_frame(
+    procs: Any, tmp_path: Path, kit: Any
+) -> None:
+    """Under noise the team plans in its leader's frame (robot 0's, told on its slots key);
+    robot 0 killed mid-circle: robot 1 leads the four left, who forget the old leader's frame
+    with the team it led, and the circle and the line form without a collision."""
+    import signal
+
+    swarm, port, log = f"e2e-lead-{os.getpid()}", kit.free_port(), tmp_path / "lead.mcap"
+    world = procs.world(swarm, port, "--robots", "5", "--patterns", "circle,line", "--seed", "6",
+                        "--record", str(log), "--json", "--wait-robots-s", "60",
+                        "--conditions", COND)
+    watcher = kit.Watcher(swarm, port)
+    kit.wait_for(lambda: "world" in watcher.alive, 30, "the watcher to see the world")
+    robots = [procs.robot(swarm, port, i, "--conditions", COND, "--sensing-seed", "6",
+                          "--estimator", "--brain", "rule:frame-balanced")
+              for i in range(5)]
+    try:
+        kit.wait_for(lambda: watcher.step() >= 12, 60, "the world to run 12 steps")
+        robots[0].send_signal(signal.SIGKILL)
+        assert world.wait(timeout=150) == 0, procs.log("world")
+    finally:
+        watcher.close()
+    result = json.loads(procs.log("world").strip().splitlines()[-1])
+    assert [p["formed"] for p in result["phases"]] == [True, True], result["phases"]
+    assert all(p["collisions"] == 0 for p in result["phases"])
+    run = read_log(log)
+    (leave,) = run.events_of("leave")
+    assert leave["robot"] == 0 and leave["step"] < result["phases"][0]["end_step"]
+    frames: dict[int, list[int]] = {}  # the steps each robot told a frame at
+    with open(log, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            k = keys.parse_key(channel.topic)
+            if k is not None and k.kind == keys.SLOTS and k.robot_id is not None:
+                m = pb.parse(pb.ROBOT_SLOTS, message.data)
+                if len(m.frame) == 2:
+                    frames.setdefault(k.robot_id, []).append(int(m.step))
+    assert set(frames) <= {0, 1}, frames  # only a leader tells
+    assert frames.get(0) and max(frames[0]) <= leave["step"]
+    assert frames.get(1) and min(frames[1]) >= leave["step"] - 1  # robot 1 leads after it
+    for r in robots[1:]:
+        assert r.wait(timeout=30) == 0
