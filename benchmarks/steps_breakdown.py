@@ -46,6 +46,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.conditions import CASES, SHAPES, split_cases  # noqa: E402 -- path set-up
 from runtime.brain.brain import load_brain  # noqa: E402
 from runtime.conditions import parse_conditions  # noqa: E402
+from runtime.decision.agreement import DEFAULT_AGREE, add_agree_argument  # noqa: E402
 from runtime.decision.formation import (  # noqa: E402
     assign_slots,
     assign_slots_batch,
@@ -98,11 +99,11 @@ def plan_steps(pos: Array, pattern: Array, weight: float) -> float:
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
-             shapes: tuple[str, ...], start: str | None = None, agree: bool = False
+             shapes: tuple[str, ...], start: str | None = None, agree: bool | str = DEFAULT_AGREE
              ) -> dict[str, Any]:
     """One case's row (see the module docstring); ``start``: every episode starts with that
-    pattern just formed (None: random starts); ``agree``: the robots' slot agreement
-    (:mod:`runtime.decision.agreement`)."""
+    pattern just formed (None: random starts); ``agree``: what the robots tell each other
+    (:data:`runtime.decision.agreement.AGREE_MODES`, ``patternrl eval --agree``)."""
     estimator = brain_name.endswith("+est")
     path = brain_name.removesuffix("+est")
     brain = load_brain(str(ROOT / path) if path.endswith(".onnx") else path)
@@ -215,9 +216,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="a brain (rule or .onnx path); '+est' decides on the peer tracker's "
                         "estimates (default rule:frame-balanced+est)")
     p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
-    p.add_argument("--agree", action="store_true",
-                   help="the robots tell each other their slots (slot agreement; "
-                        "runtime/decision/agreement.py)")
+    add_agree_argument(p)
     p.add_argument("--from", dest="start", metavar="PATTERN",
                    help="start every episode with this pattern just formed: the transition "
                         "from it, as in a launch's sequence (default: random starts)")
@@ -249,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{a.brain}, {a.robots} robots, {a.episodes} episodes per shape "
               f"({', '.join(shapes)}), seed {a.seed}, "
               f"{'from ' + a.start + ' formed' if a.start else 'random starts'}"
-              f"{', slot agreement' if a.agree else ''}; figures over each episode's steps "
+              f"{'' if a.agree == DEFAULT_AGREE else f', --agree {a.agree}'}; figures over each "
+              "episode's steps "
               f"lower bound")
         print(format_rows(rows))
     return 0
