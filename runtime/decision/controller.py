@@ -302,7 +302,12 @@ class Controller:
         """Under noise or latency, the last steps of a plan: the team's targets (n, 2) in the
         frame of its centroid seen raw, as the lander averages it (on exact late views the
         plan's frame, kept, then the frame of the team's core at one moment's slots:
-        :meth:`runtime.decision.settle.Lander.frame`), and the steps left (a 0-d array)."""
+        :meth:`runtime.decision.settle.Lander.frame`), and the steps left (a 0-d array).
+        Under noise, agreeing (a step heard), in the leader's frame instead: the leader's own
+        mean frame, which it tells, and every other robot's as last heard
+        (:meth:`runtime.decision.agreement.SlotAgreement.lead_frame`, ``follow_frame``); the
+        leader lands where its team's core stands once the team would have formed had it
+        followed (``lead_due``, ``land_frame``)."""
         assert self._lander is not None
         m, points = self._lander.frame(
             seen_team(pos, self._me, self._ref), points, self._tick, pos.mean(axis=0),
