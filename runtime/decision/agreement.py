@@ -198,6 +198,12 @@ class SlotAgreement:
         self.told_frame = self._frame_sum / self._frame_count
         return self.told_frame.copy()
 
+    @property
+    def frame_declined(self) -> bool:
+        """Whether the leader tells no frame for this pattern (its first plan was short):
+        nothing more to solve for it."""
+        return self._lead_k0 is not None and self._lead_k0 < FRAME_MIN_STEPS
+
     def lead_due(self) -> bool:
         """Whether the leader has led long enough that its team, had it followed, would
         stand formed: twice its plan's steps from the pattern's first step, and

@@ -314,11 +314,12 @@ class Controller:
             lambda team: self._planned_centroid(team, points),
             lambda team: self._cc[shared_slots(team, self._cc)])
         if self._heard is not None and self._lander.settle.sigma_m > 0.0:  # one frame for all
-            if self._me == 0:
+            told: Array | None = None
+            if self._me == 0 and not self.agreement.frame_declined:
                 planned = self._planned_centroid(pos, points)
-                told: Array | None = self.agreement.lead_frame(
+                told = self.agreement.lead_frame(
                     planned, float(centroid_targets(pos, points, planned, self.world)[1]))
-            else:  # a frame no plan of this team could have is not taken
+            elif self._me != 0:  # a frame no plan of this team could have is not taken
                 told = self.agreement.follow_frame(self._heard, m, self._frame_reach(pos))
             if told is not None:
                 target, k = centroid_targets(pos, points, told, self.world)

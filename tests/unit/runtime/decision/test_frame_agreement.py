@@ -49,9 +49,13 @@ def test_the_leader_tells_the_mean_of_its_frames_and_forgets_it_on_reset() -> No
 
 def test_a_leader_whose_plan_starts_short_tells_no_frame() -> None:
     a = SlotAgreement()
+    assert not a.frame_declined  # nothing decided before the first step
     assert a.lead_frame(np.array([1.0, 2.0]), FRAME_MIN_STEPS - 1.0) is None
+    assert a.frame_declined
     assert a.lead_frame(np.array([1.0, 2.0]), 40.0) is None  # the first step's plan counts
     assert a.told_frame is None and not a.lead_due()
+    a.reset()
+    assert not a.frame_declined
 
 
 def assert_frame(got: np.ndarray | None, want: list[float]) -> None:
