@@ -470,6 +470,52 @@ def test_a_lost_update_pairs_the_view_with_the_own_pose_of_the_latencys_age(spec
     assert lost_seen > 20
 
 
+@pytest.mark.parametrize("spec", ["k_nearest=2", "range_m=1.2", "k_nearest=2,latency_steps=2"])
+def test_a_peer_out_of_view_is_bounded_where_the_plan_carried_it(spec: str) -> None:
+    """A peer beyond the k nearest, or out of range, is known to lie farther than those in
+    view; the guard bounds it from the tracker's estimate now (its last view carried along
+    the team's plan), paired with the robot's own pose now, not from its stale view paired
+    with the robot's pose of that age, a phantom where the peer was long ago. A peer in view
+    is still paired with its view and the robot's pose of the view's age."""
+    from runtime.decision.local import Perception
+
+    n = 6
+    cond = parse_conditions(spec)
+    late = cond.latency_steps
+    per = Perception(cond, np.arange(n), [np.random.SeedSequence((5, i)) for i in range(n)],
+                     estimator=True)
+    assert per.follows_plans
+    rng = np.random.default_rng(3)
+    team = rng.uniform(-1.5, 1.5, (n, 2))
+    vel = rng.uniform(-0.5, 0.5, (n, 2))
+    follow = np.repeat(vel[None], n, axis=0)  # every robot's plan: the team's true velocities
+    path: list[np.ndarray] = []
+    out = inside = 0
+    for _ in range(30):
+        path.insert(0, team.copy())
+        seen = per.perceive(np.repeat(team[None], n, axis=0), follow)
+        age = per.last_age
+        assert seen.guard_ref is not None and seen.now is not None and age is not None
+        for b in range(n):
+            for j in range(n):
+                a = int(age[b, j])
+                if j == b or a >= len(path):
+                    continue
+                ref = seen.guard_ref[b, j]
+                if a > late:  # out of view: where the plan carried it, from here and now
+                    out += 1
+                    np.testing.assert_allclose(ref[0:2], seen.now[b, j], atol=1e-12)
+                    np.testing.assert_allclose(ref[2:4], team[b], atol=1e-12)
+                    if late == 0:  # every robot followed the plan: it is where it was carried
+                        np.testing.assert_allclose(ref[0:2], team[j], atol=1e-9)
+                    assert ref[4] == 0.0
+                else:
+                    inside += 1
+                    np.testing.assert_allclose(ref[2:4], path[a][b], atol=1e-12)
+        team = team + vel * 0.1
+    assert out > 20 and inside > 20
+
+
 def test_the_damped_landing_cuts_short_steps_only_and_only_under_noise() -> None:
     from runtime.decision.settle import Lander, settle_for
 
