@@ -19,10 +19,12 @@ nearest peer: it never forms, and its column is the safety filter's alone (colli
 A brain named ``X+naive`` runs as robots did before they knew their sensing: the safety
 filter on the raw views and their frame differences, no widened margin, no damped landing
 (the "before" of the README's table); ``X+est`` decides on the peer tracker's estimates.
-The robots agree as ``patternrl robot`` does unless told otherwise (under noise every plan
-goes in the leader's frame, :mod:`runtime.decision.agreement`): ``X+agree`` has them agree
-on their slots too (``--agree slots``), ``X+alone`` tell each other nothing (``--agree
-off``). Suffixes combine (``rule:frame-balanced+est+agree``).
+The robots agree as ``patternrl robot`` does unless told otherwise (``--agree auto``: under
+noise every plan goes in the leader's frame, and where views are local and imperfect the
+robots tell their slots too, :mod:`runtime.decision.agreement`): ``X+agree`` has them agree
+on their slots (``--agree slots``), ``X+frame`` only on the leader's frame (``--agree
+frame``), ``X+alone`` tell each other nothing (``--agree off``). Suffixes combine
+(``rule:frame-balanced+est+agree``).
 
 Episode e of shape s is env e of a world seeded ``--seed + index(s)``: every brain sees
 the same starts and the same sensing noise.
@@ -89,12 +91,13 @@ def split_cases(text: str) -> list[str]:
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
              shapes: tuple[str, ...], world: WorldConfig = DEFAULT_WORLD) -> dict[str, Any]:
     path, *flags = brain_name.split("+")
-    unknown = set(flags) - {"est", "naive", "agree", "alone"}
+    unknown = set(flags) - {"est", "naive", "agree", "alone", "frame"}
     if unknown:
         raise SystemExit(f"conditions: unknown suffix +{sorted(unknown)[0]} in {brain_name!r} "
-                         "(est, agree, alone, naive)")
+                         "(est, agree, frame, alone, naive)")
     estimator, naive = "est" in flags, "naive" in flags
-    agree = "slots" if "agree" in flags else "off" if "alone" in flags else DEFAULT_AGREE
+    agree = ("slots" if "agree" in flags else "off" if "alone" in flags
+             else "frame" if "frame" in flags else DEFAULT_AGREE)
     brain = ChargeBrain() if path == ADVERSARY else load_brain(
         str(ROOT / path) if path.endswith(".onnx") else path)
     cond = parse_conditions(CASES.get(case, case))
@@ -149,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
                    f"{', '.join(CASES)})")
     p.add_argument("--brains", default=",".join(BRAINS),
                    help="comma-separated brains; '+est' adds the estimator, '+agree' the slot "
-                   "agreement (--agree slots), '+alone' no agreement (--agree off), "
+                   "agreement (--agree slots), '+frame' the leader's frame only (--agree frame), "
+                   "'+alone' no agreement (--agree off), "
                    "'+naive' runs the "
                    "robot as before it knew its sensing (filter on the raw views and their "
                    "frame differences, no widened margin, no damped landing)")

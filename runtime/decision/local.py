@@ -180,9 +180,9 @@ class Perception:
         (its last view carried along the plan) and the robot's own pose now, not from its
         stale view, a phantom where it stood long ago that held its near peers back
         (6 nearest seen at n = 25, the same benchmark: 84 %, 1.504x -> 100 %, 1.094x;
-        docs/conditions.md, "Peers out of view: where the plan carried them"). Where the pair is known exactly
-        (:attr:`exact_pairs`) they split its room by need (:func:`guard_shares`), else
-        half each.
+        docs/conditions.md, "Peers out of view: where the plan carried them"). Where the
+        pair is known exactly (:attr:`exact_pairs`) they split its room by need
+        (:func:`guard_shares`), else half each.
 
         ``follow`` (B, n, 2) m/s, NaN where none: each robot's plan of last step for its
         team (:attr:`runtime.decision.controller.Controller.team_velocity`): with the
@@ -311,7 +311,7 @@ class LocalDecisions:
         self.controllers = [Controller(brain, world, self.safety, settle,
                                        conditions.diff_turn_rps)
                             for _ in range(E * n)]
-        mode = agree_mode(agree)
+        mode = agree_mode(agree, conditions)
         self.hearing = (Hearing(conditions, E, n, seed)
                         if hears(mode, conditions) and not naive else None)
         self.tells_slots = self.hearing is not None and mode == "slots"

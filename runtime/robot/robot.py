@@ -235,9 +235,10 @@ class Robot:
         self._view_pub: zenoh.Publisher | None = None  # under imperfect sensing (--view-every)
         self._view_step = -math.inf  # the step of the last view staged
         self._view: View | None = None  # staged by the decision, sent after its command
+        mode = agree_mode(cfg.agree, cfg.conditions)
         self.slot_talk = (SlotTalk(self.id, cfg.conditions, (cfg.sensing_seed, self.id),
-                                   self._drop, slots=agree_mode(cfg.agree) == "slots")
-                          if hears(cfg.agree, cfg.conditions) else None)
+                                   self._drop, slots=mode == "slots")
+                          if hears(mode, cfg.conditions) else None)
         """What it tells and hears of its team's slots and frame (``--agree``, under noise by
         default)."""
         self._slots_pub: zenoh.Publisher | None = None

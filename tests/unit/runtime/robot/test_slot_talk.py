@@ -148,7 +148,7 @@ def test_the_agree_option() -> None:
     assert cfg.agree == "slots" and cfg.conditions != PERFECT
     cfg, _ = config_from_args(p.parse_args(["--swarm", SWARM, "--id", "1", "--brain",
                                             "rule:assign"]), DEFAULT_WORLD)
-    assert cfg.agree == "frame"  # the default
+    assert cfg.agree == "auto"  # the default: the frame, or slots where views are local
     for mode in AGREE_MODES:
         got = p.parse_args(["--swarm", SWARM, "--id", "1", "--brain", "rule:assign",
                             "--agree", mode])
@@ -163,6 +163,8 @@ def test_the_agree_option() -> None:
     ([], "perfect,latency_steps=2", False),  # exact views: one frame without telling
     (["--agree"], "perfect,latency_steps=2", True),  # slots under any imperfect sensing
     (["--agree", "off"], "realistic", False),
+    ([], "realistic,k_nearest=6", True),  # local noisy views: slots too
+    ([], "perfect,k_nearest=6", False),  # local exact views: one plan, nothing to tell
 ])
 def test_who_tells_and_enforces_every_robots_rules(argv: list[str], conditions: str,
                                                     tells: bool) -> None:
