@@ -201,6 +201,35 @@ def test_robots_that_agree_tell_and_hear_their_slots_over_zenoh(
     assert len(on_frame) == 6 and sorted(on_frame)[1] > 0, on_frame  # all but the leader
 
 
+def test_robots_that_see_their_nearest_tell_their_slots_by_default(
+    procs: Any, tmp_path: Path
+) -> None:
+    """``launch`` under the realistic preset with only the 3 nearest peers seen, no
+    ``--agree``: the default (``auto``) is the slot agreement there, so every robot tells its
+    slot on its own key (not the leader alone, as with the frame), and the team forms the
+    circle without a collision. (From one pattern to the next, a team of 6 that sees its 3
+    nearest does not form, with slots or without: docs/conditions.md, "Local views tell
+    their slots".)"""
+    log = tmp_path / "local.mcap"
+    launch = procs.start(
+        "launch", "launch", "--robots", "6", "--patterns", "circle", "--seed", "5",
+        "--conditions", f"{COND},k_nearest=3", "--estimator", "--step-deadline-ms", "5000",
+        "--record", str(log), "--no-plot", "--json",
+        "--swarm", f"e2e-local-{os.getpid()}")
+    assert launch.wait(timeout=150) == 0, procs.log("launch")
+    result = json.loads(procs.log("launch").strip().splitlines()[-1])
+    assert [p["formed"] for p in result["phases"]] == [True], result["phases"]
+    assert all(p["collisions"] == 0 for p in result["phases"])
+    per_robot: dict[int, int] = {}
+    with open(log, "rb") as f:
+        for _, channel, _ in make_reader(f).iter_messages():
+            k = keys.parse_key(channel.topic)
+            if k is not None and k.kind == keys.SLOTS and k.robot_id is not None:
+                per_robot[k.robot_id] = per_robot.get(k.robot_id, 0) + 1
+    assert sorted(per_robot) == list(range(6)), per_robot
+    assert min(per_robot.values()) >= result["steps"] // 2, (per_robot, result["steps"])
+
+
 def test_the_leader_killed_mid_run_the_team_reforms_in_its_next_leaders_frame(
     procs: Any, tmp_path: Path, kit: Any
 ) -> None:
