@@ -77,11 +77,14 @@ class Controller:
         safety: OrcaParams | None = OrcaParams(),  # noqa: B008 - frozen, immutable default
         settle: Settle | None = None,
         turn_rate_rps: float | None = None,
+        partial_view: bool = False,
     ) -> None:
         """``turn_rate_rps``: the robot's base is a differential drive that turns at most
         this fast (:func:`runtime.decision.kinematics.diff_drive`); the safety filter's
         guard then bounds what its wheels will drive, not only what it commands, from the
-        heading its own motion shows (None: a holonomic base)."""
+        heading its own motion shows (None: a holonomic base). ``partial_view``: the robot
+        sees only part of its team (:func:`runtime.decision.agreement.local_views`), which
+        its slot agreement counts on (:attr:`SlotAgreement.partial`)."""
         self.world = world
         self._turn = turn_rate_rps
         self.safety = safety
@@ -109,7 +112,7 @@ class Controller:
         self._landing_targets: Array | None = None  # the landing's targets, (n, 2), or None
         self._claims: tuple[IntArray, int] | None = None  # heard claims and its own slot
         self._heard: Heard | None = None  # what it heard this step (None: not agreeing)
-        self.agreement = SlotAgreement()
+        self.agreement = SlotAgreement(partial_view)
         """What the robot held and told of its slots (:mod:`runtime.decision.agreement`)."""
         self.reset()
 

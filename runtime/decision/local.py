@@ -23,7 +23,7 @@ import numpy as np
 from runtime.brain.brain import Brain
 from runtime.conditions import Conditions
 from runtime.core.orca import GUARD_REF_COLUMNS
-from runtime.decision.agreement import Hearing, agree_mode, hears
+from runtime.decision.agreement import Hearing, agree_mode, hears, local_views
 from runtime.decision.controller import Controller
 from runtime.decision.estimator import PeerTracker
 from runtime.decision.safety import (
@@ -309,7 +309,7 @@ class LocalDecisions:
             safety, conditions, world)
         settle = None if naive else settle_for(conditions, estimator, world)
         self.controllers = [Controller(brain, world, self.safety, settle,
-                                       conditions.diff_turn_rps)
+                                       conditions.diff_turn_rps, local_views(conditions))
                             for _ in range(E * n)]
         mode = agree_mode(agree, conditions)
         self.hearing = (Hearing(conditions, E, n, seed)

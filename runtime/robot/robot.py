@@ -101,7 +101,7 @@ import zenoh
 from runtime import heap
 from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
 from runtime.core import kernel_status
-from runtime.decision.agreement import agree_mode, hears
+from runtime.decision.agreement import agree_mode, hears, local_views
 from runtime.decision.controller import Controller
 from runtime.decision.local import Perception, Seen
 from runtime.decision.patterns import PatternError
@@ -185,7 +185,7 @@ class Robot:
         self.log = log if log is not None else Log(f"robot {cfg.robot_id}", False)
         self.controller = Controller(brain, world, safety,
                                      settle_for(cfg.conditions, cfg.estimator, world),
-                                     cfg.conditions.diff_turn_rps)
+                                     cfg.conditions.diff_turn_rps, local_views(cfg.conditions))
         self._perception: Perception | None = None  # for the team of the last decision
         self._perceived: tuple[int, Seen] | None = None
         self._fallback: Controller | None = None  # decides the steps a brain's NaN would lose
@@ -583,7 +583,7 @@ class Robot:
             fb = self._fallback = Controller(
                 rule, self.world, self.controller.safety,
                 settle_for(self.cfg.conditions, self.cfg.estimator, self.world),
-                self.cfg.conditions.diff_turn_rps)
+                self.cfg.conditions.diff_turn_rps, local_views(self.cfg.conditions))
         if self._fallback_step != step.step - 1:  # not the step after its last: no history
             fb.reset()
             self.log("warning", "fallback", f"{ERR_NONFINITE.split(':')[0]}: "
