@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -425,6 +427,25 @@ def test_robots_split_the_guards_room_by_need_only_on_exact_views(spec: str,
         assert np.abs(share - 0.5).max() <= GUARD_SHARE_RATE + 1e-12
 
 
+def _pairs_seen(per: Any, team: np.ndarray, move: np.ndarray, steps: int,
+                follow: np.ndarray | None = None) -> Iterator[tuple[int, int, int, Any, list]]:
+    """A team moving by ``move`` a step, each robot perceiving it (``per``, one observer per
+    robot): every step, each pair (b, j) with the age of b's view of j, that step's ``Seen``
+    and the team's positions so far, newest first."""
+    n = len(team)
+    path: list[np.ndarray] = []
+    for _ in range(steps):
+        path.insert(0, team.copy())
+        seen = per.perceive(np.repeat(team[None], n, axis=0), follow)
+        age = per.last_age
+        assert seen.guard_ref is not None and age is not None
+        for b in range(n):
+            for j in range(n):
+                if j != b and int(age[b, j]) < len(path):
+                    yield b, j, int(age[b, j]), seen, path
+        team = team + move
+
+
 @pytest.mark.parametrize("spec", ["realistic", "loss=0.3,latency_steps=2"])
 def test_a_lost_update_pairs_the_view_with_the_own_pose_of_the_latencys_age(spec: str) -> None:
     """A peer whose last update was lost is paired, for the guard, with where the robot stood
@@ -444,29 +465,18 @@ def test_a_lost_update_pairs_the_view_with_the_own_pose_of_the_latencys_age(spec
     rng = np.random.default_rng(2)
     team = rng.uniform(-1.5, 1.5, (n, 2))
     step = rng.uniform(-0.09, 0.09, (n, 2))
-    path = []
     reach = 0.1 * (1.0 + cond.gain_noise) + 2.0 * cond.act_noise_mps * 0.1
     lost_seen = 0
-    for _ in range(40):
-        path.insert(0, team.copy())
-        seen = per.perceive(np.repeat(team[None], n, axis=0))
-        age = per.last_age
-        assert seen.guard_ref is not None and age is not None
-        for b in range(n):
-            for j in range(n):
-                a = int(age[b, j])
-                if j == b or a >= len(path):
-                    continue
-                ref = seen.guard_ref[b, j]
-                if a > late:  # lost: the own pose of the latency's age, and the way unseen
-                    lost_seen += 1
-                    np.testing.assert_allclose(ref[2:4], path[late][b], atol=1e-12)
-                    unseen = (min(a, covered) - late) * reach
-                    assert ref[4] == pytest.approx(unseen, abs=1e-12) and ref[4] > 0.0
-                else:
-                    np.testing.assert_allclose(ref[2:4], path[a][b], atol=1e-12)
-                    assert ref[4] == 0.0
-        team = team + step
+    for b, j, a, seen, path in _pairs_seen(per, team, step, 40):
+        ref = seen.guard_ref[b, j]
+        if a > late:  # lost: the own pose of the latency's age, and the way unseen
+            lost_seen += 1
+            np.testing.assert_allclose(ref[2:4], path[late][b], atol=1e-12)
+            unseen = (min(a, covered) - late) * reach
+            assert ref[4] == pytest.approx(unseen, abs=1e-12) and ref[4] > 0.0
+        else:
+            np.testing.assert_allclose(ref[2:4], path[a][b], atol=1e-12)
+            assert ref[4] == 0.0
     assert lost_seen > 20
 
 
@@ -489,30 +499,20 @@ def test_a_peer_out_of_view_is_bounded_where_the_plan_carried_it(spec: str) -> N
     team = rng.uniform(-1.5, 1.5, (n, 2))
     vel = rng.uniform(-0.5, 0.5, (n, 2))
     follow = np.repeat(vel[None], n, axis=0)  # every robot's plan: the team's true velocities
-    path: list[np.ndarray] = []
     out = inside = 0
-    for _ in range(30):
-        path.insert(0, team.copy())
-        seen = per.perceive(np.repeat(team[None], n, axis=0), follow)
-        age = per.last_age
-        assert seen.guard_ref is not None and seen.now is not None and age is not None
-        for b in range(n):
-            for j in range(n):
-                a = int(age[b, j])
-                if j == b or a >= len(path):
-                    continue
-                ref = seen.guard_ref[b, j]
-                if a > late:  # out of view: where the plan carried it, from here and now
-                    out += 1
-                    np.testing.assert_allclose(ref[0:2], seen.now[b, j], atol=1e-12)
-                    np.testing.assert_allclose(ref[2:4], team[b], atol=1e-12)
-                    if late == 0:  # every robot followed the plan: it is where it was carried
-                        np.testing.assert_allclose(ref[0:2], team[j], atol=1e-9)
-                    assert ref[4] == 0.0
-                else:
-                    inside += 1
-                    np.testing.assert_allclose(ref[2:4], path[a][b], atol=1e-12)
-        team = team + vel * 0.1
+    for b, j, a, seen, path in _pairs_seen(per, team, vel * 0.1, 30, follow):
+        ref = seen.guard_ref[b, j]
+        assert seen.now is not None
+        if a > late:  # out of view: where the plan carried it, from here and now
+            out += 1
+            np.testing.assert_allclose(ref[0:2], seen.now[b, j], atol=1e-12)
+            np.testing.assert_allclose(ref[2:4], path[0][b], atol=1e-12)
+            if late == 0:  # every robot followed the plan: it is where it was carried
+                np.testing.assert_allclose(ref[0:2], path[0][j], atol=1e-9)
+            assert ref[4] == 0.0
+        else:
+            inside += 1
+            np.testing.assert_allclose(ref[2:4], path[a][b], atol=1e-12)
     assert out > 20 and inside > 20
 
 
