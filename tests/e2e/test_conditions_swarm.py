@@ -234,8 +234,11 @@ def test_the_leader_killed_mid_run_the_team_reforms_in_its_next_leaders_frame(
     procs: Any, tmp_path: Path, kit: Any
 ) -> None:
     """Under noise the team plans in its leader's frame (robot 0's, told on its slots key);
-    robot 0 killed mid-circle: robot 1 leads the four left, who forget the old leader's frame
-    with the team it led, and the circle and the line form without a collision."""
+    robot 0 killed early in the circle: robot 1 leads the four left, who forget the old
+    leader's frame with the team it led, and the circle and the line form without a
+    collision. (Killed late, robot 1's plan left for the circle is short of
+    ``FRAME_MIN_STEPS`` and it tells no frame: the kill comes at step 4, as the watcher
+    sees it, so that a busy machine's lag still leaves the circle most of its way.)"""
     import signal
 
     swarm, port, log = f"e2e-lead-{os.getpid()}", kit.free_port(), tmp_path / "lead.mcap"
@@ -248,7 +251,7 @@ def test_the_leader_killed_mid_run_the_team_reforms_in_its_next_leaders_frame(
                           "--estimator", "--brain", "rule:frame-balanced")
               for i in range(5)]
     try:
-        kit.wait_for(lambda: watcher.step() >= 12, 60, "the world to run 12 steps")
+        kit.wait_for(lambda: watcher.step() >= 4, 60, "the world to run 4 steps")
         robots[0].send_signal(signal.SIGKILL)
         assert world.wait(timeout=150) == 0, procs.log("world")
     finally:
