@@ -287,7 +287,8 @@ class SlotAgreement:
         has wrong stays wrong in its view, where its landing reads the team's core (8 robots
         that see their 4 nearest, the realistic preset, circle -> cross and cross -> line,
         20 episodes each, slots: formed 50 % / 20 % -> 100 % / 95 %, 14 colliding pairs ->
-        0; docs/conditions.md, "Local views tell their slots")."""
+        0; docs/conditions.md, "A robot that sees part of its team takes a peer's claim
+        against its plan")."""
         n = len(own)
         self.adopted = False
         if (heard is None or i == 0 or heard.leader is None or len(heard.claims) != n

@@ -148,8 +148,7 @@ class Perception:
         """Whether the tracker carries peers out of view along the team's plan
         (:meth:`perceive`'s ``follow``): views of the nearest peers or within a range."""
         c = self.conditions
-        return self.tracker is not None and self.estimator and (
-            c.k_nearest > 0 or math.isfinite(c.range_m))
+        return self.tracker is not None and self.estimator and local_views(c)
 
     @property
     def uses_plans(self) -> bool:
