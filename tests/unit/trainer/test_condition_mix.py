@@ -66,8 +66,9 @@ def test_a_rollout_of_a_mixture_holds_every_condition_s_samples() -> None:
 
 
 def test_held_out_episodes_split_as_the_envs_under_each_condition() -> None:
-    """A mixture of one condition twice judges exactly the episodes one condition does; a
-    noisy second half changes the outcome."""
+    """A mixture of one condition twice judges exactly the episodes one condition does (to
+    the last bits of the policy's arithmetic, which a batch of another size may round
+    otherwise); a noisy second half changes the outcome."""
     cfg = MIX.with_(conditions="perfect", eval_episodes=4)
     agent = Agent(obs_spec_for(cfg).input_dim, cfg, WORLD.v_max_mps)
     one = evaluate_policy(agent, cfg, "line", 4, seed=5, world=WORLD)
@@ -75,7 +76,7 @@ def test_held_out_episodes_split_as_the_envs_under_each_condition() -> None:
                             world=WORLD)
     noisy = evaluate_policy(agent, cfg.with_(conditions="perfect;noise_m=0.3"), "line", 4,
                             seed=5, world=WORLD)
-    assert twice == one
+    assert twice == pytest.approx(one, rel=1e-9, nan_ok=True)
     assert noisy.formation_error != one.formation_error
 
 
