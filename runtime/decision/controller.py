@@ -44,7 +44,7 @@ from runtime.decision.settle import (
     seen_team,
     shared_slots,
 )
-from runtime.types import Array, IntArray
+from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["FRAME_SLACK_M", "HEADING_MIN_MOVE_M", "TURN_IN_PLACE_MPS", "Controller"]
@@ -116,6 +116,7 @@ class Controller:
         self._to_slot: float | None = None  # the robot's way left to its slot under a plan
         self._me = 0  # the robot deciding, and its raw views (the landing's centroid)
         self._ref: Array | None = None
+        self._in_view: BoolArray | None = None
         self._team_plan: tuple[Array, Array, Array] | Array | None = None
         """The last decision's plan for the team: (targets, positions, steps left: the team's,
         or in a landing at its own pace each robot's), or the team rule's velocities; None
@@ -329,14 +330,16 @@ class Controller:
         m, points = self._lander.frame(
             seen_team(pos, self._me, self._ref), points, self._tick, pos.mean(axis=0),
             lambda team: self._planned_centroid(team, points),
-            lambda team: self._cc[shared_slots(team, self._cc)])
+            lambda team: self._cc[shared_slots(team, self._cc)], self._in_view)
         if self._heard is not None and self._lander.settle.sigma_m > 0.0:  # one frame for all
             told: Array | None = None
             if self._me == 0 and not self.agreement.frame_declined:
                 planned = self._planned_centroid(pos, points)
                 told = self.agreement.lead_frame(
                     planned, float(centroid_targets(pos, points, planned, self.world)[1]))
-            elif self._me != 0:  # a frame no plan of this team could have is not taken
+            elif self._me == 0:  # no plan frame: under a local view it tells where it lands
+                told = self.agreement.tell_landing(m)
+            else:  # a frame no plan of this team could have is not taken
                 told = self.agreement.follow_frame(self._heard, m, self._frame_reach(pos))
             if told is not None:
                 target, k = centroid_targets(pos, points, told, self.world)
@@ -419,6 +422,7 @@ class Controller:
         guard_ref: Array | None = None,
         moment: Array | None = None,
         heard: Heard | None = None,
+        in_view: BoolArray | None = None,
     ) -> Decision:
         """Decide robot ``robot_index``'s velocity for this step.
 
@@ -440,7 +444,9 @@ class Controller:
         team of one moment, which the assignment reads (:attr:`runtime.decision.local.Seen.moment`;
         None: ``positions``). ``heard``: the slots the robot has heard its team tell, and the
         leader's assignment (:mod:`runtime.decision.agreement`; None: it goes by its own; read
-        only with ``step``).
+        only with ``step``). ``in_view``: (n,) the peers in view, where the robot sees part
+        of its team (:attr:`runtime.decision.local.Seen.in_view`): the landing's frame reads
+        those alone (None: every peer).
         A non-finite brain output, a brain that cannot drive n robots or a
         brain that raises makes the robot hold still, with ``error`` set.
         """
@@ -462,6 +468,7 @@ class Controller:
             if math.hypot(dx, dy) > HEADING_MIN_MOVE_M:
                 self._heading = math.atan2(dy, dx)
         self._me, self._ref = i, guard_ref  # the raw views, for the landing's centroid
+        self._in_view = in_view
         slots, cx, cy = self._assign(pos, moment)  # 1. assign
         self._claims = None
         self._heard = heard if step is not None else None

@@ -78,13 +78,19 @@ class Seen:
     """(B, n, 2) m: the team of one moment, as the assignment reads it: each peer as sensed
     (the tracker's, not carried along the plan) and the robot where it stood the latency's
     age ago (:meth:`Perception.perceive`; None: ``plan``)."""
+    in_view: BoolArray | None = None
+    """(B, n): where a robot sees only part of its team (:func:`local_views`), which peers
+    it has in view: seen within the steps a run of lost updates may last
+    (:meth:`Perception.perceive`); the landing's frame reads those alone
+    (:func:`runtime.decision.settle.view_centroid`). None: every peer."""
 
     def row(self, b: int) -> Seen:
         """Robot ``b``'s team alone (its arrays without the B axis)."""
         return Seen(self.plan[b], None if self.now is None else self.now[b],
                     None if self.vel is None else self.vel[b],
                     None if self.guard_ref is None else self.guard_ref[b],
-                    None if self.moment is None else self.moment[b])
+                    None if self.moment is None else self.moment[b],
+                    None if self.in_view is None else self.in_view[b])
 
 
 class Perception:
@@ -119,6 +125,7 @@ class Perception:
                                + MARGIN_SIGMAS * c.act_noise_mps * world.dt_s)
         """The most a peer may move in a step (m): a full step, what the wheels' gain may add
         to it and their noise, bounded as the safety filter bounds it."""
+        self._local = local_views(c)
         self.exact_pairs = (self.tracker is not None and c.noise_m <= 0.0 and c.loss <= 0.0
                             and c.own_latency_steps == 0)
         """Whether both robots of a pair know it exactly as it was last seen (no noise, no
@@ -226,11 +233,18 @@ class Perception:
         if old.any():
             ref[old, 0:2] = now[old]
             ref[old, 2:4] = np.broadcast_to(own[:, None], now.shape)[old]
+        # in view: seen within the steps a run of lost updates may last (beyond the k nearest
+        # or out of range, a peer's view only ages)
+        in_view = None
+        if self._local:
+            in_view = age <= max(late, self._lost_steps)
+            in_view[np.arange(B), self.observer] = True
         if not self.estimator:
-            return Seen(view, now, vel, ref)
+            return Seen(view, now, vel, ref, in_view=in_view)
         moment = self.tracker.sensed.copy()  # the assignment's team of one moment
         moment[np.arange(B), self.observer] = self._own[min(late, GUARD_HISTORY_STEPS - 1)]
-        return Seen(self.tracker.planned, now, vel, ref, moment)  # smoothed, along the plan
+        return Seen(self.tracker.planned, now, vel, ref, moment,  # smoothed, along the plan
+                    in_view)
 
     def _shares(self, view: Array, age: IntArray, step: int | None = None) -> Array:
         """(B, n) each robot's share of the guard's room with each peer: by need
@@ -350,7 +364,8 @@ class LocalDecisions:
                 mine = seen.row(b)
                 d = self.controllers[b].decide(i, mine.plan, C, self.step, mine.vel, mine.now,
                                                mine.guard_ref, mine.moment,
-                                               None if hearing is None else hearing.heard(b))
+                                               None if hearing is None else hearing.heard(b),
+                                               mine.in_view)
                 out[e, i] = d.velocity
                 slots[e, i] = d.slot
                 changed[e, i] = d.safety_changed

@@ -332,12 +332,12 @@ from runtime.core.plan_frame import steps_left
 from runtime.decision.estimator import steady_sigma
 from runtime.decision.formation import assign_slots_batch, centred
 from runtime.decision.safety import OrcaParams
-from runtime.types import Array, IntArray
+from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = ["CENTROID_FRAME", "CORE_M", "Lander", "Settle", "centroid_targets", "core_frame",
            "damp_landing", "landing_gain", "landing_steps", "seen_centroid", "seen_team",
-           "settle_for", "shared_slots", "smooth_centroid"]
+           "settle_for", "shared_slots", "smooth_centroid", "view_centroid"]
 
 
 @dataclass(frozen=True)
@@ -517,7 +517,8 @@ class Lander:
 
     def frame(self, team: Array, points: Array, tick: int, start: Array,
               planned: Callable[[Array], Array],
-              shared: Callable[[Array], Array] | None = None) -> tuple[Array, Array]:
+              shared: Callable[[Array], Array] | None = None,
+              in_view: BoolArray | None = None) -> tuple[Array, Array]:
         """The landing frame's centroid (2,) m and the slot points (n, 2) it holds, from the
         team (n, 2) as the robot sees it raw (:func:`seen_team`) and its slot points
         ``points``: :meth:`centroid`'s of the team's centroid (``tick``, ``start`` as there);
@@ -525,8 +526,10 @@ class Lander:
         ``plan_frame_steps`` steps the centroid of the team's targets that ``planned(team)``
         gives on its first step, kept, then the :func:`core_frame` of the slot points
         ``shared(team)`` gives, an assignment every robot makes alike from the team of one
-        moment (None: ``points``; see "The plan's frame, kept, then the team's core's")."""
-        m = self.centroid(team.mean(axis=0), tick, len(team), start)
+        moment (None: ``points``; see "The plan's frame, kept, then the team's core's").
+        ``in_view`` (n,): the peers the robot has in view, where it sees part of its team;
+        the centroid is then the one they show (:func:`view_centroid`)."""
+        m = self.centroid(view_centroid(team, points, in_view), tick, len(team), start)
         keep = self.settle.plan_frame_steps
         if keep <= 0:
             return m, points
@@ -606,10 +609,34 @@ def seen_team(pos: Array, me: Any, ref: Array | None) -> Array:
     return raw
 
 
-def seen_centroid(pos: Array, me: Any, ref: Array | None) -> Array:
+def seen_centroid(pos: Array, me: Any, ref: Array | None, points: Array | None = None,
+                  in_view: BoolArray | None = None) -> Array:
     """The team's centroid (..., 2) m as robot ``me`` sees it raw: the mean of
-    :func:`seen_team`, on late views the team's centroid of one moment."""
-    out: Array = seen_team(pos, me, ref).mean(axis=-2)
+    :func:`seen_team`, on late views the team's centroid of one moment; with ``in_view``,
+    the one the peers in view show at their slot points ``points`` (:func:`view_centroid`)."""
+    team = seen_team(pos, me, ref)
+    if in_view is None or points is None:
+        out: Array = team.mean(axis=-2)
+        return out
+    return view_centroid(team, points, in_view)
+
+
+def view_centroid(team: Array, points: Array, in_view: BoolArray | None) -> Array:
+    """The team's centroid (..., 2) m as the robots in view show it: the mean over them of
+    each one's position less its slot point (``points`` (..., n, 2), robot j's, centred),
+    the frame :func:`centroid_targets` lands in; with every robot in view (or ``in_view``
+    None) the team's centroid. A robot that sees only its nearest peers and took the others
+    where its own plan put them (:meth:`runtime.decision.local.Perception.perceive`: along
+    the plan, out of view) would anchor its frame to its own guess: 8 robots under the
+    realistic preset seeing their 4 nearest landed 2-3 cm off the pattern, each in its own
+    frame (see "Small teams that see few of their peers")."""
+    t = np.asarray(team, dtype=np.float64)
+    if in_view is None:
+        out: Array = t.mean(axis=-2)
+        return out
+    w = np.asarray(in_view, dtype=np.float64)[..., None]
+    off = t - centred(np.asarray(points, dtype=np.float64))
+    out = (w * off).sum(axis=-2) / np.maximum(w.sum(axis=-2), 1.0)
     return out
 
 

@@ -495,7 +495,8 @@ class Robot:
                 heard = (None if talk is None
                          else talk.heard(step.step, step.ids, me, version))
                 d = self.controller.decide(me, seen.plan, pattern, step.step, seen.vel,
-                                           seen.now, seen.guard_ref, seen.moment, heard)
+                                           seen.now, seen.guard_ref, seen.moment, heard,
+                                           seen.in_view)
                 if d.error == ERR_NONFINITE:
                     d = self._nonfinite(step, pattern, d, seen)
                 if talk is not None:
@@ -592,7 +593,7 @@ class Robot:
                              count=False)
         self._fallback_step = step.step
         fd = fb.decide(step.ids.index(self.id), seen.plan, pattern, step.step, seen.vel,
-                       seen.now, seen.guard_ref, seen.moment)
+                       seen.now, seen.guard_ref, seen.moment, in_view=seen.in_view)
         return d if fd.error else fd
 
     def _send(self, step: int, d: Decision) -> None:

@@ -159,8 +159,11 @@ class SensedRows:
                 cont = land & self._landing
                 self._land_k[land] = np.where(cont[land], self._land_k[land] + 1, 0)
                 m = P[land].mean(axis=1)  # a landing starts from the tracker's centroid
+                pts = np.take_along_axis(C, slots[..., None], axis=1)  # then, in a local
+                iv = seen.in_view  # view, the one the peers in view show at their slots
                 ref = None if seen.guard_ref is None else seen.guard_ref[cont]
-                raw = seen_centroid(P[cont], np.tile(self._eye, E)[cont], ref)
+                raw = seen_centroid(P[cont], np.tile(self._eye, E)[cont], ref, pts[cont],
+                                    None if iv is None else iv[cont])
                 m[cont[land]] = smooth_centroid(
                     self._centroid[cont], raw,
                     self.settle.centroid_weight(self._land_k[cont]),

@@ -33,15 +33,17 @@ class RecordingBrain:
 
 @pytest.mark.parametrize("obs", ["plan", "general"])
 @pytest.mark.parametrize("spec", ["realistic", "noise_m=0.1,latency_steps=2", "k_nearest=3",
-                                  "landing", "late landing"])
+                                  "landing", "late landing", "local landing"])
 def test_each_robots_row_is_what_its_robot_builds_from_its_own_view(obs: str, spec: str) -> None:
     """``landing``: 10 cm noise with the team next to its slots, so that every plan lands in
     its averaged centroid frame (runtime.decision.settle) from the first step on; ``late
     landing``: exact views 3 steps late, the team next to its slots, so that every plan lands
-    in the plan's frame it keeps, then in the centroid frame."""
+    in the plan's frame it keeps, then in the centroid frame; ``local landing``: the first,
+    each robot seeing its 3 nearest, so that its frame is the one its peers in view show."""
     E, n, seed = 2, 6, 7
-    landing = spec in ("landing", "late landing")
-    spec = {"landing": "noise_m=0.1", "late landing": "latency_steps=3"}.get(spec, spec)
+    landing = spec in ("landing", "late landing", "local landing")
+    spec = {"landing": "noise_m=0.1", "late landing": "latency_steps=3",
+            "local landing": "noise_m=0.1,k_nearest=3"}.get(spec, spec)
     cond = parse_conditions(spec)
     ospec = ObservationSpec(obs, k_neighbours=4, travel_weight=0.25 if obs == "plan" else 0.0)
     rows = SensedRows(cond, ospec, E, n, seed)
