@@ -27,12 +27,17 @@ frame``), ``X+alone`` tell each other nothing (``--agree off``). Suffixes combin
 (``rule:frame-balanced+est+agree``).
 
 Episode e of shape s is env e of a world seeded ``--seed + index(s)``: every brain sees
-the same starts and the same sensing noise.
+the same starts and the same sensing noise. A shape ``A>B`` starts every episode with
+pattern A just formed and asks for B (``patternrl eval --from A --pattern B``: the demo's
+short ways); ``--transitions`` runs the demo's four (circle>cross, cross>line, line>heart,
+heart>circle).
 
     .venv/bin/python benchmarks/conditions.py [--robots 10] [--episodes 20]
         [--cases perfect,noise5,...] [--brains rule:frame-balanced,...] [--json]
 
 ``--quick``: 4 episodes, circle and heart only.
+    .venv/bin/python benchmarks/conditions.py --robots 8 --transitions \
+        --cases "realistic,k_nearest=4" --brains rule:frame-balanced+est
 """
 
 from __future__ import annotations
@@ -72,6 +77,8 @@ CASES: dict[str, str] = {
     "combined": "realistic",
 }
 SHAPES = ("circle", "cross", "heart", "triangle", "random")
+TRANSITIONS = ("circle>cross", "cross>line", "line>heart", "heart>circle")
+"""The demo's sequence (``patternrl launch``), each pattern from the one before, formed."""
 BRAINS = ("rule:assign", "rule:frame", "rule:frame-balanced", "rule:frame-balanced+est",
           "exports/general.onnx+est", ADVERSARY)
 
@@ -104,9 +111,10 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
     tot: dict[str, float] = {"episodes": 0, "ok": 0, "formed": 0, "held": 0, "coll": 0,
                              "steps": 0.0, "wall": 0.0}
     for k, shape in enumerate(shapes):
-        r = evaluate_brain(brain, shape, n, episodes, seed=seed + k, conditions=cond,
+        start, _, target = shape.rpartition(">")
+        r = evaluate_brain(brain, target, n, episodes, seed=seed + k, conditions=cond,
                            estimator=estimator, progress=False, naive=naive, world=world,
-                           agree=agree)
+                           agree=agree, start_pattern=start or None)
         st = r.episode_stats
         formed = [f > 0 for f in st["formed"]]
         held = [h >= 0.9 for h in st["held"]]
@@ -157,7 +165,10 @@ def main(argv: list[str] | None = None) -> int:
                    "'+naive' runs the "
                    "robot as before it knew its sensing (filter on the raw views and their "
                    "frame differences, no widened margin, no damped landing)")
-    p.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated shapes")
+    p.add_argument("--shapes", default=",".join(SHAPES),
+                   help="comma-separated shapes; A>B starts from pattern A formed")
+    p.add_argument("--transitions", action="store_true",
+                   help=f"the demo's transitions as the shapes ({','.join(TRANSITIONS)})")
     p.add_argument("--spacing", type=float, default=DEFAULT_WORLD.pattern_spacing_m,
                    metavar="M", help="the shapes' closest pair (m; default "
                    f"{DEFAULT_WORLD.pattern_spacing_m:g}, the built-ins')")
@@ -165,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     args = p.parse_args(argv)
     episodes = 4 if args.quick else args.episodes
-    shapes = ("circle", "heart") if args.quick else tuple(args.shapes.split(","))
+    shapes = (("circle", "heart") if args.quick else TRANSITIONS if args.transitions
+              else tuple(args.shapes.split(",")))
     brains = args.brains.split(",")
     cases = split_cases(args.cases)
     for case in cases:

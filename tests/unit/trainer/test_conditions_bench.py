@@ -80,3 +80,17 @@ def test_spacing_widens_the_shapes_and_a_bad_one_is_a_one_line_error() -> None:
     bad = _run("--spacing", "0.1", "--episodes", "1")
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert "--spacing must be at least 2R" in bad.stderr.strip().splitlines()[-1]
+
+
+def test_a_shape_a_to_b_starts_every_episode_from_a_formed(bench: ModuleType) -> None:
+    """``cross>line`` is ``patternrl eval --from cross --pattern line``: the same episodes."""
+    from runtime.brain.brain import load_brain
+    from runtime.conditions import parse_conditions
+    from trainer.evaluate import evaluate_brain
+
+    row = bench.run_case("rule:frame-balanced+est", "noise5", 7, 3, 5, ("cross>line",))
+    r = evaluate_brain(load_brain("rule:frame-balanced"), "line", 7, 3, seed=5,
+                       conditions=parse_conditions(bench.CASES["noise5"]), estimator=True,
+                       start_pattern="cross", progress=False)
+    assert row["formed"] == r.formed_rate and row["steps_ratio"] == pytest.approx(r.steps_ratio)
+    assert bench.TRANSITIONS[0] == "circle>cross"
