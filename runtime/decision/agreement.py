@@ -240,7 +240,7 @@ class SlotAgreement:
         robots' frames differed by centimetres that views with noise do not average away,
         and a team on a short transition crept to the tolerance for tens of steps or never
         held (8 robots that see their 4 nearest, the realistic preset, 40 episodes at seed
-        12, both with :func:`runtime.decision.settle.view_centroid`: cross -> line held
+        12, both with :func:`runtime.decision.landing_frame.view_centroid`: cross -> line held
         60 % -> 100 %, line -> heart 5 % -> 55 %; docs/conditions.md, "Small teams that see
         few of their peers")."""
         if not self.partial:
@@ -264,11 +264,11 @@ class SlotAgreement:
 
     def land_frame(self, core: Array, weight: Any, gate: float) -> Array:
         """The leader's frame (2,) m for its plan's last steps: the frame its team's core
-        stands in (``core``, :func:`runtime.decision.settle.core_frame` of its view), averaged
-        from the frame it told (the mean of each step's, ``weight(k)`` of the k-th, one that
-        comes ``gate`` m or more off moving it at once): where the others went by the
-        leader's frame their core stands in it and nothing moves; where they never heard it,
-        the leader lands in theirs."""
+        stands in (``core``, :func:`runtime.decision.landing_frame.core_frame` of its view),
+        averaged from the frame it told (the mean of each step's, ``weight(k)`` of the k-th,
+        one that comes ``gate`` m or more off moving it at once): where the others went by
+        the leader's frame their core stands in it and nothing moves; where they never heard
+        it, the leader lands in theirs."""
         if self._land is None:
             self._land = (np.array(self.told_frame if self.told_frame is not None else core,
                                    dtype=np.float64), 0)

@@ -29,21 +29,19 @@ from runtime.core.general_row import GeneralRows
 from runtime.core.orca import CHANGE_TOL_MPS
 from runtime.decision.agreement import Heard, SlotAgreement
 from runtime.decision.kinematics import diff_drive_step
+from runtime.decision.landing_frame import (
+    CORE_M,
+    centroid_targets,
+    core_frame,
+    seen_team,
+    shared_slots,
+)
 from runtime.decision.observation import observe
 from runtime.decision.patterns import min_spacing
 from runtime.decision.pipeline import ERR_BRAIN, ERR_NONFINITE, ERR_TEAM, Decision
 from runtime.decision.rules import PlanFrame, pace_velocity, plan_targets
 from runtime.decision.safety import OrcaParams, guard_distance, landing, make_filter
-from runtime.decision.settle import (
-    CORE_M,
-    Lander,
-    Settle,
-    centroid_targets,
-    core_frame,
-    landing_steps,
-    seen_team,
-    shared_slots,
-)
+from runtime.decision.settle import Lander, Settle, landing_steps
 from runtime.types import Array, BoolArray, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 

@@ -82,7 +82,7 @@ class Seen:
     """(B, n): where a robot sees only part of its team (:func:`local_views`), which peers
     it has in view: seen within the steps a run of lost updates may last
     (:meth:`Perception.perceive`); the landing's frame reads those alone
-    (:func:`runtime.decision.settle.view_centroid`). None: every peer."""
+    (:func:`runtime.decision.landing_frame.view_centroid`). None: every peer."""
 
     def row(self, b: int) -> Seen:
         """Robot ``b``'s team alone (its arrays without the B axis)."""

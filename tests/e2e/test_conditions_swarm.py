@@ -86,7 +86,7 @@ def test_a_late_team_stalled_on_two_robots_held_to_each_others_slots_comes_loose
     assigned to a landed neighbour's slot while every other robot gave it the free one, and it
     pushed at that neighbour for 400 steps. A landing that goes on past the plan's frame now
     takes its slots from the assignment the team of one moment gives every robot alike
-    (runtime.decision.settle.shared_slots), and the heart forms."""
+    (runtime.decision.landing_frame.shared_slots), and the heart forms."""
     launch = procs.start(
         "launch", "launch", "--robots", "10", "--seed", "8", "--conditions", "latency_steps=2",
         "--estimator", "--step-deadline-ms", "5000", "--no-record", "--no-plot", "--json",

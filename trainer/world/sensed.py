@@ -35,20 +35,19 @@ import numpy as np
 
 from runtime.conditions import Conditions
 from runtime.core.assignment import assign_teams
-from runtime.decision.local import Perception
-from runtime.decision.observation import ObservationSpec, general_observation
-from runtime.decision.rules import pace_velocity, plan_targets
-from runtime.decision.settle import (
+from runtime.decision.landing_frame import (
     CORE_M,
     centroid_targets,
     core_frame,
-    landing_steps,
     seen_centroid,
     seen_team,
-    settle_for,
     shared_slots,
     smooth_centroid,
 )
+from runtime.decision.local import Perception
+from runtime.decision.observation import ObservationSpec, general_observation
+from runtime.decision.rules import pace_velocity, plan_targets
+from runtime.decision.settle import landing_steps, settle_for
 from runtime.types import Array, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 

@@ -598,7 +598,8 @@ def test_the_landing_averages_the_teams_centroid_over_its_steps() -> None:
     noise moves the average at once."""
     import dataclasses
 
-    from runtime.decision.settle import Lander, centroid_targets, settle_for
+    from runtime.decision.landing_frame import centroid_targets
+    from runtime.decision.settle import Lander, settle_for
 
     s = settle_for(Conditions(noise_m=0.1), estimator=True)
     assert s is not None and s.centroid_gain == pytest.approx(0.03)
@@ -640,7 +641,8 @@ def test_a_late_landing_keeps_the_plans_frame_then_the_frame_of_the_teams_core()
     the slots the team of one moment gives every robot alike; the same step again redoes it, a
     gap starts a new landing, which asks again. Under noise: the centroid frame from the start,
     at the robot's own slots."""
-    from runtime.decision.settle import CORE_M, Lander, core_frame, settle_for, shared_slots
+    from runtime.decision.landing_frame import CORE_M, core_frame, shared_slots
+    from runtime.decision.settle import Lander, settle_for
 
     s = settle_for(Conditions(latency_steps=3))
     assert s is not None
@@ -694,7 +696,7 @@ def test_the_landing_sees_the_centroid_in_the_raw_views() -> None:
     """Each peer where it was last sensed (the raw view, which the tracker's smoothing does not
     lag), the robot itself where it is, the estimate where a view is missing; a batch of
     robots alike."""
-    from runtime.decision.settle import seen_centroid
+    from runtime.decision.landing_frame import seen_centroid
 
     pos = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])  # the tracker's estimates
     ref = np.full((3, 5), np.nan)

@@ -2,7 +2,7 @@
 
 Out of view, a peer is carried along the robot's own plan; counted in the landing's centroid
 it anchored each robot's frame to its own guess, and teams that see few of their peers landed
-centimetres apart, short of the tolerance (:func:`runtime.decision.settle.view_centroid`).
+centimetres apart, short of the tolerance (:func:`runtime.decision.landing_frame.view_centroid`).
 Where the leader's first plan is too short to tell a plan frame, it tells the frame it lands
 in, so that the team lands in one frame
 (:meth:`runtime.decision.agreement.SlotAgreement.tell_landing`).
@@ -17,9 +17,10 @@ from runtime.brain.brain import load_brain
 from runtime.conditions import parse_conditions
 from runtime.decision.agreement import SlotAgreement
 from runtime.decision.controller import Controller
+from runtime.decision.landing_frame import seen_centroid, view_centroid
 from runtime.decision.local import Perception
 from runtime.decision.safety import OrcaParams, uncertainty_params
-from runtime.decision.settle import seen_centroid, settle_for, view_centroid
+from runtime.decision.settle import settle_for
 from trainer.evaluate import evaluate_brain
 
 SQUARE = np.array([[-0.3, -0.3], [0.3, -0.3], [0.3, 0.3], [-0.3, 0.3]])
