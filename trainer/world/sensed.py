@@ -96,15 +96,15 @@ class SensedRows:
         self.to_slot.reshape(-1)[rows] = np.inf
 
     def _frame(self, land: Any, cont: Any, m: Array, P: Array, C: Array, Cc: Array,
-               slots: IntArray, ref: Array | None) -> tuple[Array, Array]:
+               slots: IntArray, ref: Array | None, pts: Array) -> tuple[Array, Array]:
         """The landing frames' centroids (landing rows, 2) m and the slot points (landing
-        rows, n, 2) they hold: ``m``, their centroids, at the robots' slots; or on exact late
+        rows, n, 2) they hold: ``m``, their centroids, at the robots' slots (``pts``, the
+        landing rows' slot points, which it may change); or on exact late
         views for a landing's first ``plan_frame_steps`` steps the centroid of the targets
         the plan gives the team of one moment as the robot sees it on the landing's first
         step, kept, then the frame of the team's core at the slots every robot assigns alike
         from that moment (:meth:`runtime.decision.settle.Lander.frame`)."""
         assert self.settle is not None
-        pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)
         keep = self.settle.plan_frame_steps
         if keep <= 0:
             return m, pts
@@ -158,17 +158,17 @@ class SensedRows:
                 cont = land & self._landing
                 self._land_k[land] = np.where(cont[land], self._land_k[land] + 1, 0)
                 m = P[land].mean(axis=1)  # a landing starts from the tracker's centroid
-                pts = np.take_along_axis(C, slots[..., None], axis=1)  # then, in a local
-                iv = seen.in_view  # view, the one the peers in view show at their slots
+                pts = np.take_along_axis(C[land], slots[land][..., None], axis=1)  # then, in
+                iv = seen.in_view  # a local view, the one the peers in view show at their slots
                 ref = None if seen.guard_ref is None else seen.guard_ref[cont]
-                raw = seen_centroid(P[cont], np.tile(self._eye, E)[cont], ref, pts[cont],
+                raw = seen_centroid(P[cont], np.tile(self._eye, E)[cont], ref, pts[cont[land]],
                                     None if iv is None else iv[cont])
                 m[cont[land]] = smooth_centroid(
                     self._centroid[cont], raw,
                     self.settle.centroid_weight(self._land_k[cont]),
                     self.settle.centroid_gate(n))
                 self._centroid[land] = m
-                frame, pts = self._frame(land, cont, m, P, C, Cc, slots, seen.guard_ref)
+                frame, pts = self._frame(land, cont, m, P, C, Cc, slots, seen.guard_ref, pts)
                 G[land], K[land] = centroid_targets(P[land], pts, frame, self.world)
             self._landing = land
             each = np.repeat(K[:, None], n, axis=1)  # each robot's steps left: the team's,
