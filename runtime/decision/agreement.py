@@ -242,7 +242,7 @@ class SlotAgreement:
         held (8 robots that see their 4 nearest, the realistic preset, 40 episodes at seed
         12, both with :func:`runtime.decision.landing_frame.view_centroid`: cross -> line held
         60 % -> 100 %, line -> heart 5 % -> 55 %; docs/conditions.md, "Small teams that see
-        few of their peers")."""
+        few of their peers land in one frame")."""
         if not self.partial:
             return None
         self.told_frame = np.array(m, dtype=np.float64)

@@ -104,7 +104,7 @@ def view_centroid(team: Array, points: Array, in_view: BoolArray | None) -> Arra
     where its own plan put them (:meth:`runtime.decision.local.Perception.perceive`: along
     the plan, out of view) would anchor its frame to its own guess: 8 robots under the
     realistic preset seeing their 4 nearest landed 2-3 cm off the pattern, each in its own
-    frame (see "Small teams that see few of their peers")."""
+    frame (docs/conditions.md, "Small teams that see few of their peers land in one frame")."""
     t = np.asarray(team, dtype=np.float64)
     if in_view is None:
         out: Array = t.mean(axis=-2)
