@@ -14,8 +14,10 @@ module                    concept
                           neighbour choice of the row and the filter
 :mod:`.orca`              the ORCA safety filter and the speed clamp
 :mod:`.general_row`       the general (and plan) observation row
-:mod:`.assignment`        the shared slot assignment: cost, solver (warm),
-                          optimality proof, hysteresis
+:mod:`.lsap`              the minimum-cost assignment's solver (scipy's
+                          shortest augmenting path, cold or warm)
+:mod:`.assignment`        the shared slot assignment: cost, optimality
+                          proof, hysteresis; per team and batched
 :mod:`.plan_frame`        the synchronised plan's frame (smallest
                           enclosing circle, blend, steps left)
 ========================= ===============================================
@@ -28,7 +30,7 @@ from pathlib import Path
 
 __all__ = ["MODULES", "compiled_modules", "kernel_status", "stale_modules"]
 
-MODULES = ("neighbours", "orca", "general_row", "assignment", "plan_frame")
+MODULES = ("neighbours", "orca", "general_row", "lsap", "assignment", "plan_frame")
 """The compiled modules of this package (each also runs as Python)."""
 
 

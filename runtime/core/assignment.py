@@ -15,41 +15,14 @@ world :func:`assign_teams` for a batch of teams, and
 run the same per-team code.
 
 The solver
-    The shortest augmenting path algorithm (Crouse 2016) as scipy's
-    ``rectangular_lsap.cpp`` runs it: rows in order, free columns scanned from
-    the last down, a tie to a column that ends the path. Cold (no previous
-    assignment), it is scipy's solver step for step: the same answer, ties
-    included. Warm, it starts from the slot potentials ``v`` of the last step
-    (kept by the caller, ``potentials``): ``u[i] = min_j cost[i, j] - v[j]``
-    makes them feasible duals, each robot whose previous slot is still tight
-    (``cost[i, prev[i]] - v[prev[i]] == u[i]``) keeps it, and only the others
-    are augmented. The answer is an optimal assignment, scipy's unless several
-    are optimal (exact ties). When every robot's previous slot is still tight
-    the duals prove the previous assignment optimal and nothing is augmented:
-    :func:`assign_team` returns 0. The hysteresis rule is then applied to the
-    two assignments' summed costs, summed in numpy's order (:func:`path_cost`),
-    so the result is the rule's on scipy's answer.
-
-Why the warm solver, and not a proof of the previous assignment then a solve
-    The alternative kept the previous assignment where Bellman-Ford over its
-    exchange graph (in slot-potential form, up to 3 relaxation rounds) proved
-    it within half the hysteresis margin, and solved cold where the proof
-    failed. Both were compiled from this source and timed on a loaded 2-core
-    machine (per-call medians of :func:`assign_team`, warm from the last step;
-    forming: 40 steps of a circle from random starts at 0.1 m a step, formed:
-    the circle with 4 mm of noise a step)::
-
-        n     forming: warm solver / proof + solve   formed: warm / proof
-        10         4.8 / 4.4 us                      4.3 / 4.2 us
-        50          23 / 37 us                        10 / 8.5 us
-        100         85 / 161 us                       24 / 21 us
-
-    A formed team costs both about one pass over the cost (the duals' row
-    minima, or one relaxation round): a wash. A forming team's proof fails
-    from about 50 robots (its slots' potentials move more per step than a few
-    rounds follow) and the whole assignment is then solved again, while the
-    warm solver augments only the robots whose slot is no longer their best:
-    1.6-1.9x faster. The warm solver is kept.
+    :func:`runtime.core.lsap.solve`: scipy's shortest augmenting path, cold (scipy's
+    answer, ties included) or warm from the slot potentials of the last step (kept by
+    the caller, ``potentials``), where only the robots whose previous slot is no longer
+    tight are augmented; why warm, and its timings, are written there. When every
+    robot's previous slot is still tight the potentials prove the previous assignment
+    optimal and nothing is augmented: :func:`assign_team` returns 0. The hysteresis
+    rule is then applied to the two assignments' summed costs, summed in numpy's order
+    (:func:`path_cost`), so the result is the rule's on scipy's answer.
 
 Layouts: a team's positions (n, 2), costs (n, n) C-contiguous, slots and
 potentials (n,); a batch adds a leading team axis (E, ...), any strides (the
@@ -57,12 +30,18 @@ training world passes transposed views of its robot-major arrays). Slots are
 int64, everything else float64, metres and m^2.
 
 Plain Python in Cython's pure-Python mode (see :mod:`runtime.core`): compiled it
-runs as C without a Python operation per team or robot; as Python the same
-operations give the same numbers, slower.
+runs as C without a Python operation per team or robot, calling the compiled solver
+(declared in ``lsap.pxd``); as Python the same operations give the same numbers,
+slower.
 """
 
 import cython
 import numpy as np
+
+if cython.compiled:
+    from cython.cimports.runtime.core.lsap import solve
+else:
+    from runtime.core.lsap import solve
 
 __all__ = [
     "HYSTERESIS_ABS_M2",
@@ -84,7 +63,6 @@ HYSTERESIS_ABS_M2 = 1e-6
 # the rule's constants as C values, for the compiled loops
 _REL = cython.declare(cython.double, HYSTERESIS_REL)
 _ABS = cython.declare(cython.double, HYSTERESIS_ABS_M2)
-_INF = cython.declare(cython.double, float("inf"))
 # assign_team's scratch when compiled (grown to the largest team seen)
 _FW = cython.declare(cython.double[:, ::1], np.empty((2, 0)))
 _IW = cython.declare(cython.longlong[:, ::1], np.empty((6, 0), dtype=np.int64))
@@ -204,146 +182,6 @@ def _centred_cost(pos: cython.double[:, :], ccx: cython.double[::1], ccy: cython
 
 @cython.cfunc
 @cython.exceptval(check=False)
-def _augment(
-    cost: cython.double[:, ::1], v: cython.double[::1], u: cython.double[::1],
-    spc: cython.double[::1], path: cython.longlong[::1], col4row: cython.longlong[::1],
-    row4col: cython.longlong[::1], remaining: cython.longlong[::1], SR: cython.longlong[::1],
-    SC: cython.longlong[::1], cur: cython.Py_ssize_t,
-) -> cython.Py_ssize_t:
-    """One shortest augmenting path from the free row ``cur``, as scipy's solver finds
-    it, then the duals' update and the augmentation; -1 if none (infeasible)."""
-    n: cython.Py_ssize_t = cost.shape[0]
-    it: cython.Py_ssize_t
-    j: cython.Py_ssize_t
-    t: cython.Py_ssize_t
-    index: cython.Py_ssize_t
-    num: cython.Py_ssize_t = n
-    sink: cython.Py_ssize_t = -1
-    i: cython.Py_ssize_t = cur
-    min_val: cython.double = 0.0
-    lowest: cython.double
-    r: cython.double
-    for it in range(n):
-        remaining[it] = n - it - 1  # reversed: a constant cost gives the identity
-        SR[it] = 0
-        SC[it] = 0
-        spc[it] = _INF
-    while sink == -1:
-        index = -1
-        lowest = _INF
-        SR[i] = 1
-        for it in range(num):
-            j = remaining[it]
-            r = min_val + cost[i, j] - u[i] - v[j]
-            if r < spc[j]:
-                path[j] = i
-                spc[j] = r
-            if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
-                lowest = spc[j]
-                index = it
-        min_val = lowest
-        if min_val == _INF or index < 0:
-            return -1
-        j = remaining[index]
-        if row4col[j] == -1:
-            sink = j
-        else:
-            i = row4col[j]
-        SC[j] = 1
-        num -= 1
-        remaining[index] = remaining[num]
-    # the duals' update
-    u[cur] += min_val
-    for i in range(n):
-        if SR[i] != 0 and i != cur:
-            u[i] += min_val - spc[col4row[i]]
-    for j in range(n):
-        if SC[j] != 0:
-            v[j] -= min_val - spc[j]
-    # the augmentation along the path
-    j = sink
-    while True:
-        i = path[j]
-        row4col[j] = i
-        t = col4row[i]
-        col4row[i] = j
-        j = t
-        if i == cur:
-            break
-    return sink
-
-
-@cython.cfunc
-@cython.exceptval(check=False)
-def _solve(
-    cost: cython.double[:, ::1], prev: cython.longlong[::1], warm: cython.bint,
-    v: cython.double[::1], u: cython.double[::1], spc: cython.double[::1],
-    path: cython.longlong[::1], col4row: cython.longlong[::1], row4col: cython.longlong[::1],
-    remaining: cython.longlong[::1], SR: cython.longlong[::1], SC: cython.longlong[::1],
-) -> cython.Py_ssize_t:
-    """A minimum-cost assignment into ``col4row``: cold (scipy's solver, ``v`` zeroed)
-    or warm from the slot potentials ``v`` and the previous slots ``prev`` (a
-    permutation). Returns the rows augmented (0: ``prev`` is proven optimal), -1 when
-    the cost holds NaN or -inf or has no finite assignment. ``v`` is updated."""
-    n: cython.Py_ssize_t = cost.shape[0]
-    i: cython.Py_ssize_t
-    j: cython.Py_ssize_t
-    c: cython.double
-    m: cython.double
-    r: cython.double
-    top: cython.double
-    solved: cython.Py_ssize_t = 0
-    for i in range(n):
-        col4row[i] = -1
-        row4col[i] = -1
-        u[i] = 0.0
-    if warm:
-        for j in range(n):
-            if not (v[j] - v[j] == 0.0):  # a non-finite potential: start cold
-                warm = False
-    if warm:  # u: the potentials v made feasible; the previous slots still tight kept
-        for i in range(n):
-            m = _INF
-            for j in range(n):
-                c = cost[i, j]
-                if c != c or c == -_INF:
-                    return -1
-                r = c - v[j]
-                if r < m:
-                    m = r
-            if m == _INF:  # a robot without a finite cost
-                return -1
-            u[i] = m
-            j = prev[i]
-            if row4col[j] == -1 and cost[i, j] - v[j] == m:
-                col4row[i] = j
-                row4col[j] = i
-    else:
-        for i in range(n):
-            for j in range(n):
-                c = cost[i, j]
-                if c != c or c == -_INF:
-                    return -1
-        for j in range(n):
-            v[j] = 0.0
-    for i in range(n):
-        if col4row[i] != -1:
-            continue
-        if _augment(cost, v, u, spc, path, col4row, row4col, remaining, SR, SC, i) < 0:
-            return -1
-        solved += 1
-    if solved > 0:  # only differences count: keep the numbers small
-        top = v[0]
-        for j in range(1, n):
-            if v[j] > top:
-                top = v[j]
-        for j in range(n):
-            v[j] -= top
-    return solved
-
-
-@cython.cfunc
-@cython.exceptval(check=False)
 def _assign_one(
     cost: cython.double[:, ::1], prev: cython.longlong[::1], has_prev: cython.bint,
     v: cython.double[::1], slots: cython.longlong[::1], fw: cython.double[:, ::1],
@@ -357,8 +195,16 @@ def _assign_one(
     col4row: cython.longlong[::1] = iw[1]
     SR: cython.longlong[::1] = iw[4]
     valid: cython.bint = has_prev and _is_permutation(prev, SR)
-    got: cython.Py_ssize_t = _solve(cost, prev, valid, v, u, spc, iw[0], col4row, iw[2],
-                                    iw[3], SR, iw[5])
+    got: cython.Py_ssize_t
+    if cython.compiled:  # the rows by pointer: no view copied into the solver's module
+        got = solve(cython.address(cost[0, 0]), n, cython.address(prev[0]), valid,
+                    cython.address(v[0]), cython.address(u[0]), cython.address(spc[0]),
+                    cython.address(iw[0, 0]), cython.address(col4row[0]),
+                    cython.address(iw[2, 0]), cython.address(iw[3, 0]), cython.address(SR[0]),
+                    cython.address(iw[5, 0]))
+    else:  # as Python, the cost flat
+        got = solve(np.ravel(cost), n, prev, valid, v, u, spc, iw[0], col4row, iw[2], iw[3],
+                    SR, iw[5])
     same: cython.bint
     new: cython.double
     old: cython.double

@@ -45,3 +45,27 @@ def python_core() -> SimpleNamespace:
         assert not mod.cython.compiled
     assert general_row.nearest is neighbours.nearest and orca.nearest is neighbours.nearest
     return SimpleNamespace(neighbours=neighbours, general_row=general_row, orca=orca)
+
+
+@functools.cache
+def python_assignment() -> SimpleNamespace:
+    """``lsap`` and ``assignment`` run uncompiled, from their source.
+
+    The assignment imports ``solve`` from ``runtime.core.lsap``; while it loads, that
+    name points at the uncompiled solver, so the two run as Python together. The
+    compiled module is put back afterwards.
+    """
+    import runtime.core.lsap  # noqa: F401 - the module to put back
+
+    key = "runtime.core.lsap"
+    compiled = sys.modules[key]
+    lsap = _from_source("lsap", key)
+    sys.modules[key] = lsap
+    try:
+        assignment = _from_source("assignment", "runtime_core_assignment_source")
+    finally:
+        sys.modules[key] = compiled
+    for mod in (lsap, assignment):
+        assert not mod.cython.compiled
+    assert assignment.solve is lsap.solve
+    return SimpleNamespace(lsap=lsap, assignment=assignment)

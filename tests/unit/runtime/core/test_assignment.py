@@ -2,15 +2,14 @@
 
 References: scipy's ``linear_sum_assignment`` (values and ties), brute force over all
 permutations (n <= 7), the hysteresis rule worked by hand, numpy's own sums. The
-module is also run uncompiled (its .py loaded by path) and held equal to the
-compiled one, number for number.
+module is also run uncompiled (its .py and its solver's loaded by path,
+:func:`support.core_source.python_assignment`) and held equal to the compiled one,
+number for number.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
-from pathlib import Path
 from types import ModuleType
 
 import numpy as np
@@ -18,6 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
+from support.core_source import python_assignment
 
 from runtime.core import assignment as A
 from runtime.decision.formation import (
@@ -28,19 +28,7 @@ from runtime.decision.formation import (
 )
 
 REL, FLOOR = A.HYSTERESIS_REL, A.HYSTERESIS_ABS_M2
-
-
-def _python_module() -> ModuleType:
-    """runtime/core/assignment.py itself, run as Python under another name."""
-    path = Path(A.__file__).with_name("assignment.py")
-    spec = importlib.util.spec_from_file_location("assignment_as_python", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-PY = _python_module()
+PY = python_assignment().assignment  # the source run as Python, its solver too
 
 
 def _cost(rng: np.random.Generator, n: int, kind: int) -> np.ndarray:
