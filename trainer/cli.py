@@ -45,8 +45,8 @@ from trainer.evaluate import manifest_evaluation
 from trainer.ppo.export import write_brain
 from trainer.rollout import RolloutMode, env_shares
 from trainer.train import RunPlan, TrainResult, artefact_paths, train
+from trainer.world.episodes import check_pattern
 from trainer.world.reward import PAPER_REWARD
-from trainer.world.training_world import check_pattern
 
 DEFAULT_TIME_BUDGET_S = 1800.0
 

@@ -63,7 +63,8 @@ from runtime.errors import InputError
 from runtime.types import Array, BoolArray
 from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
 from trainer.adversary import ADVERSARY, ChargeBrain
-from trainer.world.training_world import RANDOM_PATTERN, BatchWorld, check_pattern
+from trainer.world.episodes import RANDOM_PATTERN, check_pattern
+from trainer.world.training_world import BatchWorld
 
 _T = TypeVar("_T", bound=np.generic)
 HOLD_STEPS = 20

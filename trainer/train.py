@@ -80,7 +80,8 @@ from trainer.rollout import (
     condition_shares,
     row_memory,
 )
-from trainer.world.training_world import BatchWorld, check_pattern
+from trainer.world.episodes import check_pattern
+from trainer.world.training_world import BatchWorld
 
 __all__ = ["RESUME_SEED_STRIDE", "RunPlan", "TrainResult", "train"]
 RECENT_EPISODES_PER_ENV = 4

@@ -40,18 +40,10 @@ Step (``BatchWorld.step``), in order
        and last observation (``final_obs``).
 
 Starts and patterns
-    Each env owns a ``numpy.random.Generator`` spawned from ``SeedSequence(seed)``
-    (child e for env e), used only by that env's resets: env e's sequence of
-    episodes depends on nothing else (not on E, nor on the other envs). With
-    ``first_env = a`` the envs are children a, a+1, ...: a world holding envs
-    [a, b) of a larger batch (one Ray worker's share) draws what that batch's
-    envs would. A reset draws the pattern (one of the set, uniformly) and then
-    N starts uniform in the arena, pairwise >= ``start_separation`` apart
-    (every robot too close to a lower-numbered one is redrawn), or, with
-    ``start_pattern``, that pattern formed at the arena's centre (each robot within
-    half the formed tolerance of its point: a transition, as from one pattern of a
-    sequence to the next). Patterns are ``make_pattern(name, N)`` (cached);
-    ``"random"`` draws a ``random_pattern``.
+    Each env draws its pattern and starts from its own generator
+    (:class:`trainer.world.episodes.EpisodeDraws`; that module says how), so env
+    e's sequence of episodes depends on nothing else (not on E, nor on the other
+    envs). What a step returns: :class:`trainer.world.episodes.StepResult`.
 """
 
 from __future__ import annotations
@@ -59,7 +51,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,66 +60,15 @@ from runtime.core.assignment import assign_teams
 from runtime.decision.formation import assign_slots_batch, lower_bounds
 from runtime.decision.kinematics import Wheels
 from runtime.decision.observation import ObservationSpec, general_observation, observe
-from runtime.decision.patterns import make_pattern, random_pattern
 from runtime.decision.rules import plan_targets
 from runtime.decision.settle import Settle, damp_landing, settle_for
 from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.ppo.rank import rank_goals
 from trainer.world.contacts import move
+from trainer.world.episodes import EpisodeDraws, EpisodeStats, StepResult
 from trainer.world.reward import DEFAULT_REWARD, PAPER_REWARD, RewardConfig, step_reward
 from trainer.world.sensed import SensedRows
-
-RANDOM_PATTERN = "random"
-
-
-def check_pattern(name: str | Path, n_robots: int, world: WorldConfig = DEFAULT_WORLD) -> None:
-    """Raise PatternError (one line) unless ``name`` is usable: a built-in, a file, or "random"."""
-    if str(name) != RANDOM_PATTERN:
-        make_pattern(name, n_robots, world)
-"""Pattern name that draws a fresh random shape at every reset."""
-
-_MAX_START_DRAWS = 10_000
-
-
-class EpisodeStats(NamedTuple):
-    """Statistics of the k envs whose episodes ended this step (arrays of length k)."""
-
-    env_ids: IntArray  # (k,) which envs
-    formed: BoolArray  # (k,) formed (else truncated)
-    steps: IntArray  # (k,) steps taken
-    travel: Array  # (k,) total distance travelled by all robots (m)
-    collisions: IntArray  # (k,) colliding pairs summed over the episode
-    final_error: Array  # (k,) formation error at the end (m; with hold_steps, at the first passage)
-    episode_return: Array  # (k,) sum over steps of the robots' mean reward
-    pattern_ids: IntArray  # (k,) index into the pattern set
-    final_obs: F32Array  # (k, N, D) last observation, before the reset
-    final_positions: Array  # (k, N, 2) where the robots ended (m)
-    lower_bound_steps: IntArray | None  # (k,) when compute_bounds
-    lower_bound_travel: Array | None  # (k,) metres, when compute_bounds
-    first_formed: IntArray | None = None  # (k,) step first formed (-1: never), with hold_steps
-    held: Array | None = None  # (k,) share of the hold window's steps formed, with hold_steps
-
-
-class StepResult(NamedTuple):
-    """What one ``BatchWorld.step`` returns."""
-
-    obs: F32Array  # (E, N, D), after auto-reset of the envs that finished
-    reward: F32Array  # (E, N)
-    done: BoolArray  # (E,) formed | truncated
-    formed: BoolArray  # (E,)
-    truncated: BoolArray  # (E,)
-    collisions: IntArray  # (E,) colliding pairs this step
-    episode: EpisodeStats | None  # the envs that finished this step, else None
-
-
-def _pattern_list(patterns: Sequence[str | Path] | str | Path) -> tuple[str, ...]:
-    if isinstance(patterns, str | Path):
-        return (str(patterns),)
-    names = tuple(str(p) for p in patterns)
-    if not names:
-        raise ValueError("the pattern set is empty")
-    return names
 
 
 def _env_major(X: Array) -> Array:
@@ -178,10 +118,8 @@ class BatchWorld:
             raise ValueError(f"hold_steps must be >= 0, got {hold_steps}")
         self.conditions = conditions
         self.hold_steps = int(hold_steps)
-        self._start: Array | None = None  # a formed pattern every episode starts in
-        if start_pattern is not None and str(start_pattern) != RANDOM_PATTERN:
-            start = make_pattern(start_pattern, n_robots, world)
-            self._start = start - start.mean(axis=0) + 0.5 * world.arena_m
+        # each env's generator and the pattern set (the starts' pattern checked now)
+        self._draws = EpisodeDraws(n_envs, n_robots, world, seed, first_env, start_pattern)
         self.n_envs = n_envs
         self.first_env = first_env
         self.n_robots = n_robots
@@ -198,10 +136,8 @@ class BatchWorld:
         E, N = n_envs, n_robots
         self._reach = world.max_step_m
         self._formed_tol2 = world.formed_tol_m**2
-        self._lower = np.tril(np.ones((N, N), dtype=bool), -1)  # [i, j]: j < i
         self._no_obs: F32Array = np.zeros((E, N, 0), dtype=np.float32)
         self._no_obs.flags.writeable = False
-        self._rngs = self._spawn_rngs(seed)
         self.wheels: Wheels | None = None  # the conditions' actuation, apart from the starts
         if not conditions.acting_perfect:
             wheel_seeds = np.random.SeedSequence((seed, 1)).spawn(first_env + n_envs)
@@ -217,9 +153,7 @@ class BatchWorld:
         self.held_steps: IntArray = np.zeros(n_envs, dtype=np.int64)
         self.travel_at_formed: Array = np.zeros(n_envs)
         self.error_at_formed: Array = np.zeros(n_envs)
-        self._cache: dict[str, Array] = {}
-        self.patterns: tuple[str, ...] = ()
-        self._set_pattern_names(_pattern_list(patterns))
+        self._draws.set_patterns(patterns)
 
         # public state, (E, ...) first; frames[:, 0] now, [:, 1] one step earlier, [:, 2] two
         self.frames: Array = np.zeros((E, 3, N, 2))
@@ -277,18 +211,10 @@ class BatchWorld:
 
     # ------------------------------------------------------------ pattern set
 
-    def _spawn_rngs(self, seed: int) -> list[np.random.Generator]:
-        # env e is child first_env + e: a share of a larger batch draws what that batch would
-        children = np.random.SeedSequence(seed).spawn(self.first_env + self.n_envs)
-        children = children[self.first_env :]
-        return [np.random.default_rng(c) for c in children]
-
-    def _set_pattern_names(self, names: tuple[str, ...]) -> None:
-        for name in names:  # validate every pattern now: a bad one fails here, not mid-run
-            if name != RANDOM_PATTERN and name not in self._cache:
-                C = make_pattern(name, self.n_robots, self.world)
-                self._cache[name] = C - C.mean(axis=0)  # centred, as the assignment centres it
-        self.patterns = names
+    @property
+    def patterns(self) -> tuple[str, ...]:
+        """The pattern set's names; ``pattern_ids`` index it."""
+        return self._draws.patterns
 
     def set_patterns(self, patterns: Sequence[str | Path] | str, *, retarget: bool = True) -> None:
         """Switch the pattern set, e.g. to the next pattern of a sequence.
@@ -300,60 +226,23 @@ class BatchWorld:
         the new observations with :meth:`observe`. Without it, each env picks
         up the new set at its next reset.
         """
-        self._set_pattern_names(_pattern_list(patterns))
+        self._draws.set_patterns(patterns)
         if not retarget:
             return
         ids = np.arange(self.n_envs)
         self.pattern = self.pattern.copy()
-        for e in ids:
-            self._draw_pattern(int(e))
+        self._draw_patterns(ids)
         self._begin_episodes(ids)
         if self.build_obs:
             self._obs = self._observe(ids)
 
-    def _draw_pattern(self, e: int) -> None:
-        rng = self._rngs[e]
-        k = int(rng.integers(len(self.patterns)))
-        name = self.patterns[k]
-        if name == RANDOM_PATTERN:
-            C = random_pattern(rng, self.n_robots, self.world)
-            self.pattern[e] = C - C.mean(axis=0)
-        else:
-            self.pattern[e] = self._cache[name]
-        self.pattern_ids[e] = k
+    def _draw_patterns(self, ids: IntArray) -> None:
+        """Each env of ``ids`` draws its next target, in place (the caller owns ``pattern``)."""
+        for e in ids:
+            e = int(e)
+            self.pattern[e], self.pattern_ids[e] = self._draws.pattern(e)
 
     # ------------------------------------------------------------------ reset
-
-    def _draw_starts(self, ids: IntArray) -> Array:
-        """N starts per env of ``ids``, uniform in the arena, pairwise >= start_separation;
-        with a start pattern, that pattern formed at the arena's centre, each robot within
-        half the formed tolerance of its point (a team that has just formed it).
-
-        Each env draws from its own generator only, and what it redraws depends
-        only on its own points, so its starts do not depend on which other envs
-        reset with it. Returns (k, N, 2).
-        """
-        rngs = [self._rngs[int(e)] for e in ids]
-        if self._start is not None:
-            half = 0.5 * self.world.formed_tol_m
-            out = []
-            for rng in rngs:
-                r = half * np.sqrt(rng.uniform(0.0, 1.0, self.n_robots))
-                a = rng.uniform(0.0, 2.0 * math.pi, self.n_robots)
-                out.append(self._start + np.stack([r * np.cos(a), r * np.sin(a)], axis=1))
-            return np.stack(out)
-        N, side = self.n_robots, self.world.arena_m
-        sep2 = self.world.start_separation_m**2
-        P = np.stack([rng.uniform(0.0, side, (N, 2)) for rng in rngs])
-        for _ in range(_MAX_START_DRAWS):
-            diff = P[:, :, None, :] - P[:, None, :, :]
-            close = np.einsum("eijk,eijk->eij", diff, diff) < sep2
-            bad = (close & self._lower).any(axis=2)  # too close to a lower-numbered robot
-            if not bad.any():
-                return P
-            for r in np.flatnonzero(bad.any(axis=1)):
-                P[r, bad[r]] = rngs[r].uniform(0.0, side, (int(bad[r].sum()), 2))
-        raise RuntimeError("could not draw separated starts; the arena is too crowded")
 
     def _ids(self, env_ids: NDArray[np.integer] | None) -> IntArray:
         if env_ids is None:
@@ -370,9 +259,7 @@ class BatchWorld:
         """
         ids = self._ids(env_ids)
         if seed is not None:
-            fresh = self._spawn_rngs(seed)
-            for e in ids:
-                self._rngs[int(e)] = fresh[int(e)]
+            self._draws.reseed(ids, seed)
         self.frames = self.frames.copy()  # leave arrays handed out before as they were
         self.pattern = self.pattern.copy()
         self._reset_envs(ids)
@@ -405,9 +292,8 @@ class BatchWorld:
         """New pattern and starts for ``ids``, in place (the caller owns fresh arrays)."""
         if len(ids) == 0:
             return
-        for e in ids:
-            self._draw_pattern(int(e))
-        self.frames[ids] = self._draw_starts(ids)[:, None]
+        self._draw_patterns(ids)
+        self.frames[ids] = self._draws.starts(ids)[:, None]
         if self.wheels is not None:
             self.wheels.reset(ids)
         self._begin_episodes(ids)
@@ -616,10 +502,6 @@ class BatchWorld:
 __all__ = [
     "DEFAULT_REWARD",
     "PAPER_REWARD",
-    "RANDOM_PATTERN",
     "BatchWorld",
-    "EpisodeStats",
     "RewardConfig",
-    "StepResult",
-    "check_pattern",
 ]
