@@ -23,7 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "sim_bridge.launch.cli_patterns",
         "list built-in patterns, or draw one to check it",
     ),
-    "robot": ("runtime.robot.robot", "run one robot: observe peers over Zenoh, act with a brain"),
+    "robot": ("runtime.robot.process", "run one robot: observe peers over Zenoh, act with a brain"),
     "swap": ("runtime.brain.swap", "hot-swap the brain of running robots"),
     "train": ("trainer.cli", "train a brain with Pattern-RL (or standard PPO) and export ONNX"),
     "eval": ("trainer.evaluate", "measure a brain: success, collisions, steps and travel ratios"),

@@ -1,3 +1,4 @@
-"""The robot process: its options, its loop, the inbox that says when a step is ready, the
-worker that validates brain swaps off the loop, its status figures and its log lines.
+"""The robot process: its options, its loop, the inbox that says when a step is ready, what it
+publishes, the worker that validates brain swaps off the loop, its status figures and its log
+lines.
 """

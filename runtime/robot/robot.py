@@ -1,4 +1,5 @@
-"""``patternrl robot``: one robot's process. Observe peers over Zenoh, act with a brain.
+"""One robot over Zenoh: observe peers, act with a brain (its process:
+:mod:`runtime.robot.process`).
 
 Loop (one decision at a time; Zenoh callbacks store what arrives, and the all-poses
 callback decides its step at once on Zenoh's thread when nothing else is pending -- see
@@ -52,55 +53,28 @@ Slots: with ``--agree`` under imperfect sensing, each step the slot the robot go
 lowest-id robot its whole assignment) on its slots key, just before the step's command, and
 the team's heard (:mod:`runtime.robot.slot_talk`, :mod:`runtime.decision.agreement`).
 
-View: under imperfect sensing (``--conditions`` other than perfect), once every
-``--view-every`` steps (default 10; 0: never) the team as the robot perceived it for that
-step's decision (:class:`runtime.wire.messages.View`: its tracker's estimate of where each
-member is at the step, or the view as sensed without a tracker, and each member's age), on
-the robot's view key, right after the step's command: the log keeps it beside the world's
-ground truth, and ``patternrl replay`` reports the estimation error.
-
-Status: about once a second on the robot's status key (decision latency p50 and
-p99 over the last period, loop jitter = p99 - p50 of the interval between
-consecutive decisions, messages dropped, errors, safety interventions).
-
 The pieces (the robot holds them; its loop reads observe -> decide -> send):
 :class:`runtime.robot.inbox.PoseInbox` (poses in, lockstep/realtime readiness, stale
 peers), :class:`runtime.decision.team_pattern.TeamPattern` (which target),
 :class:`runtime.robot.swap_worker.SwapWorker` (brain swaps),
+:class:`runtime.robot.publish.Outbox` (commands, status, slots and views out),
 :class:`runtime.robot.status.RobotStats` (status figures), the options in
 :mod:`runtime.robot.cli`.
-
-Brains must be signed (:mod:`runtime.brain.signing`) by a key the robot trusts: the
-project's release key, the user's own key and every ``--trust`` key; a brain
-file or swap without such a signature is refused (rule brains need none).
-
-Exit codes: 0 on SIGINT/SIGTERM or ``--exit-after-silence-s``; 2 on bad input
-(missing, invalid or untrusted brain, bad pattern, bad options), with one line
-on stderr; 1 when the world is gone or never came (``--world-timeout-s``: no
-pose for that long, counted from the start until the first) or on an
-unexpected failure.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import math
-import os
 import random
-import signal
-import sys
 import threading
 import time
-from types import FrameType
-from typing import TYPE_CHECKING, Final
+from typing import Final
 
 import numpy as np
 import zenoh
 
-from runtime import heap
-from runtime.brain.brain import RULE_PREFIX, Brain, BrainError, load_brain, short_id
-from runtime.core import kernel_status
+from runtime.brain.brain import RULE_PREFIX, Brain, load_brain
 from runtime.decision.agreement import agree_mode, hears, local_views
 from runtime.decision.controller import Controller
 from runtime.decision.local import Perception, Seen
@@ -109,56 +83,27 @@ from runtime.decision.pipeline import ERR_NONFINITE, Decision
 from runtime.decision.safety import OrcaParams, guard_distance
 from runtime.decision.settle import settle_for
 from runtime.decision.team_pattern import TeamPattern
-from runtime.errors import InputError
 from runtime.log import Log, one_line
-from runtime.net.session import ZenohSetupError, direct, open_session_from_args
-from runtime.robot.cli import FALLBACK_RULE, RobotConfig, add_arguments, config_from_args
+from runtime.net.session import direct
+from runtime.robot.cli import FALLBACK_RULE, RobotConfig
 from runtime.robot.in_flight import InFlight
 from runtime.robot.inbox import PoseInbox, Step
+from runtime.robot.publish import Outbox
 from runtime.robot.slot_talk import SlotTalk
 from runtime.robot.status import RobotStats
-from runtime.robot.swap_worker import SwapReply, SwapWorker
+from runtime.robot.swap_worker import SwapWorker
 from runtime.types import Array
 from runtime.wire import keys
-from runtime.wire.messages import (
-    Command,
-    MessageError,
-    Slots,
-    View,
-    decode_pattern,
-    encode,
-    encode_command,
-    encode_status,
-)
+from runtime.wire.messages import MessageError, decode_pattern
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
-if TYPE_CHECKING:
-    from runtime.ros2.robot_link import Ros2Link
-
-# add_arguments and run: the sub-command interface patternrl.cli loads from this module
-__all__ = ["Robot", "RobotConfig", "add_arguments", "heavy_modules", "run"]
+__all__ = ["Robot"]
 
 
-HEAVY_MODULES: Final = ("torch", "onnx", "pymunk", "mcap", "matplotlib")
 IDLE_WAKE_S: Final = 0.2  # the loop looks at status, watchdog and stop at least this often
 BACKLOG_GAP_S: Final = 0.002
 """realtime: an all-poses message whose callback starts this soon after the last one ended was
 queued behind it (the robot is behind): it is kept, not decided."""
-ROBOT_ZENOH_RUNTIME: Final = (
-    "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
-    "acc: (handover: app), net: (handover: app))"
-)
-"""Zenoh's runtimes in a robot process (``ZENOH_RUNTIME``, unless set): one thread for all
-of them. A robot has one link, one subscription that matters and one publisher; Zenoh's
-default gives it five threads (app, acc, tx, rx x2) that hand every message from one to
-the next, each hand-over a wake-up. Measured side by side (``benchmarks/compare.py ...
-swarm_scale.py``, load 40-55): lockstep 10 robots 149 -> 204 steps/s, CPU per robot-step
-0.64 -> 0.43 ms; realtime 100 robots 9.5 % -> 5.5 % of decisions late; 12 -> 8 threads."""
-
-
-def heavy_modules() -> list[str]:
-    """The heavy packages this process has loaded (a robot should have none)."""
-    return [m for m in HEAVY_MODULES if m in sys.modules]
 
 
 def _still(why: str) -> Decision:
@@ -231,40 +176,23 @@ class Robot:
         self._pose_sub: zenoh.Subscriber[None] | None = None
         self._pose_keys_wanted = False  # set by _on_own_pose, taken by the loop
         self._t_start = time.monotonic()  # --world-timeout-s counts from here until a pose
-        self._ros2: Ros2Link | None = None  # --ros2: the pose from ROS 2, the command to it
-        self._view_pub: zenoh.Publisher | None = None  # under imperfect sensing (--view-every)
-        self._view_step = -math.inf  # the step of the last view staged
-        self._view: View | None = None  # staged by the decision, sent after its command
+        self.outbox = Outbox(self.id, self.stats, cfg.view_every)
+        """What it tells: commands, status, its slots and views (and to ROS 2 with --ros2)."""
         mode = agree_mode(cfg.agree, cfg.conditions)
         self.slot_talk = (SlotTalk(self.id, cfg.conditions, (cfg.sensing_seed, self.id),
                                    self._drop, slots=mode == "slots")
                           if hears(mode, cfg.conditions) else None)
         """What it tells and hears of its team's slots and frame (``--agree``, under noise by
         default)."""
-        self._slots_pub: zenoh.Publisher | None = None
-        self._slots: Slots | None = None  # staged by the decision, sent before its command
 
     # ------------------------------------------------------------- lifecycle
 
     def start(self) -> None:
         """Declare publishers, subscribers and the liveliness token; start the swap worker."""
         s, sw, z = self.session, self.cfg.swarm, self._zenoh
-        self._cmd_pub = z.enter_context(
-            s.declare_publisher(keys.cmd_key(sw, self.id), express=True)
-        )
-        self._status_pub = z.enter_context(
-            s.declare_publisher(keys.status_key(sw, self.id), express=True)
-        )
-        if self.cfg.view_every > 0 and not self.cfg.conditions.sensing_perfect:
-            self._view_pub = z.enter_context(
-                s.declare_publisher(keys.view_key(sw, self.id), express=True)
-            )
+        views = self.cfg.view_every > 0 and not self.cfg.conditions.sensing_perfect
+        self.outbox.declare(s, sw, z, views=views, slots=self.slot_talk is not None)
         if self.slot_talk is not None:  # before the poses: a step's decision hears them
-            # batched with the command that follows it (in order, so still before it): a
-            # third express publisher beside the command's and the view's lost every view
-            # after the first on the world's side
-            self._slots_pub = z.enter_context(
-                s.declare_publisher(keys.slots_key(sw, self.id), express=False))
             z.enter_context(s.declare_subscriber(keys.all_slots(sw), direct(self._on_slots)))
         z.enter_context(s.declare_subscriber(keys.poses_key(sw), direct(self._on_poses)))
         # per-robot poses until the first all-poses message (then undeclared). In realtime
@@ -290,14 +218,14 @@ class Robot:
         if self.cfg.ros2 is not None:  # rclpy loads here only
             from runtime.ros2.robot_link import open_robot_link
 
-            self._ros2 = z.enter_context(open_robot_link(
+            self.outbox.ros2 = z.enter_context(open_robot_link(
                 self.cfg.ros2, self, lambda: len(self._team_ids)
             ))
         try:  # the latest pattern, if someone (the world) answers queries on it
             s.get(keys.pattern_key(sw), self._on_pattern_reply, timeout=2.0)
         except zenoh.ZError as e:  # a query nobody can answer is not an error
             self.log("debug", "pattern_query", str(e))
-        self._publish_status()
+        self.outbox.status(self._brain_id())
 
     def stop(self) -> None:
         """Ask the loop to end (within IDLE_WAKE_S); safe from a signal handler."""
@@ -417,10 +345,10 @@ class Robot:
         while not self._stop.is_set():
             with self._loop_lock:
                 for reply in self.swaps.apply(self._brain_id, self._install):  # between steps
-                    self._publish_status(reply)
+                    self.outbox.status(self._brain_id(), reply)
                 now = time.monotonic()
                 if now >= next_status:
-                    self._publish_status()
+                    self.outbox.status(self._brain_id())
                     self.stats.new_period()
                     next_status = now + period
                 code = self._watch(now)
@@ -489,8 +417,8 @@ class Robot:
                         positions[me] += (dx, dy)
                 seen = (Seen(positions) if self._perception is None
                         else self._perceive(step, positions))
-                if self._view_pub is not None and self._perception is not None:
-                    self._stage_view(step, seen)
+                if self.outbox.sends_views and self._perception is not None:
+                    self.outbox.stage_view(step, seen, self._perception)
                 talk, version = self.slot_talk, self.pattern.version
                 heard = (None if talk is None
                          else talk.heard(step.step, step.ids, me, version))
@@ -503,10 +431,10 @@ class Robot:
                     agreement = self.controller.agreement
                     talk.adopted_steps += agreement.adopted
                     talk.frame_steps += agreement.heard_frame
-                    self._slots = talk.told(step.step, version, step.ids, me,
-                                            None if d.slot < 0
-                                            else self.controller.previous_slots,
-                                            agreement.told_frame)
+                    self.outbox.stage_slots(talk.told(
+                        step.step, version, step.ids, me,
+                        None if d.slot < 0 else self.controller.previous_slots,
+                        agreement.told_frame))
             except Exception as e:  # whatever arrives, the loop goes on, holding still
                 self.controller.reset()
                 d = _still(f"decision failed: {e}")
@@ -537,39 +465,6 @@ class Robot:
                 np.asarray(positions)[None], follow, step.step).row(0))
         return self._perceived[1]
 
-    def _stage_view(self, step: Step, seen: Seen) -> None:
-        """Keep this step's perceived team to send after its command, once every
-        ``--view-every`` steps: the tracker's estimate of the team now, else the plan's view."""
-        if step.step - self._view_step < self.cfg.view_every:
-            return
-        assert self._perception is not None
-        age = self._perception.last_age
-        if age is None:
-            return
-        self._view_step = step.step
-        xy = seen.plan if seen.now is None else seen.now
-        try:
-            self._view = View(self.id, step.step, np.asarray(step.ids), xy, age[0])
-        except MessageError as e:
-            self.stats.error(f"view: {e}")
-
-    def _publish_slots(self) -> None:
-        msg, self._slots = self._slots, None
-        self._put("slots", self._slots_pub, msg)
-
-    def _publish_view(self) -> None:
-        view, self._view = self._view, None
-        self._put("view", self._view_pub, view)
-
-    def _put(self, what: str, pub: zenoh.Publisher | None, msg: Slots | View | None) -> None:
-        """Encode and put a staged message (none staged, or no publisher: nothing)."""
-        if msg is None or pub is None:
-            return
-        try:
-            pub.put(encode(msg))
-        except MessageError as e:
-            self.stats.error(f"{what}: {e}")
-
     def _nonfinite(self, step: Step, pattern: Array, d: Decision,
                    seen: Seen) -> Decision:
         """A step whose brain output is not finite: counted, and decided by the fallback."""
@@ -597,11 +492,7 @@ class Robot:
         return d if fd.error else fd
 
     def _send(self, step: int, d: Decision) -> None:
-        if self._slots is not None:  # before the command: the world steps on commands
-            self._publish_slots()
-        self._publish_cmd(step, d)
-        if self._view is not None:
-            self._publish_view()
+        self.outbox.send(step, d, self._brain_id())
         if self._in_flight is not None:
             self._in_flight.sent(step, d.velocity[0], d.velocity[1], time.monotonic(),
                                  self.inbox.newest_step)
@@ -619,7 +510,7 @@ class Robot:
         self._team_ids = []
         self.stats.error(f"watchdog: {why}", count=False)
         self.log("warning", "watchdog", why)
-        self._publish_cmd(max(self.stats.last_step, 0), _still(why))
+        self.outbox.command(max(self.stats.last_step, 0), _still(why), self._brain_id())
 
     def _brain_id(self) -> str:
         return self.controller.brain.brain_id
@@ -628,104 +519,3 @@ class Robot:
         self.controller.set_brain(brain)
         self._fallback = None  # the fallback follows a new rule brain
         self.pattern.use_brain(brain)
-
-    def _publish_cmd(self, step: int, d: Decision) -> None:
-        bvx, bvy = d.brain_velocity
-        if not (math.isfinite(bvx) and math.isfinite(bvy)):  # the robot held still
-            bvx, bvy = d.velocity
-        cmd = Command(
-            robot_id=self.id,
-            step=step,
-            vx=d.velocity[0],
-            vy=d.velocity[1],
-            brain_id=self.controller.brain.brain_id[:64],
-            safety_changed=d.safety_changed,
-            safety_change_mps=d.safety_change_mps if math.isfinite(d.safety_change_mps) else 0.0,
-            decision_us=d.decision_us,
-            brain_vx=bvx,
-            brain_vy=bvy,
-        )
-        self._cmd_pub.put(encode_command(cmd))
-        if self._ros2 is not None:
-            self._ros2.command(cmd.vx, cmd.vy)
-
-    def _publish_status(self, reply: SwapReply | None = None) -> None:
-        status = self.stats.status(self.id, self.controller.brain.brain_id, reply)
-        try:
-            self._status_pub.put(encode_status(status))
-        except MessageError as e:
-            self.stats.error(f"status: {e}")
-
-
-# ------------------------------------------------------------------ process
-
-
-def run(args: argparse.Namespace) -> int:
-    """``patternrl robot``: check the options, load the brain, run until a signal or silence."""
-    world = DEFAULT_WORLD
-    log = Log(f"robot {args.id}", args.json_logs, "debug" if args.verbose else "info")
-    try:
-        cfg, safety = config_from_args(args, world)
-        brain = load_brain(args.brain, world, cfg.trust)
-        if cfg.ros2 is not None:  # rclpy's libraries on the loader's path, before any thread
-            from runtime.ros2.environment import ensure_library_path, import_rclpy
-
-            ensure_library_path()
-            import_rclpy()
-    except (InputError, BrainError) as e:
-        print(f"patternrl robot: error: {one_line(str(e))}", file=sys.stderr)
-        return 2
-    sys.setswitchinterval(0.001)  # a validating swap thread yields the GIL quickly
-    os.environ.setdefault("ZENOH_RUNTIME", ROBOT_ZENOH_RUNTIME)  # before the first session
-    stop = threading.Event()
-    robot_ref: list[Robot] = []
-
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        stop.set()
-        if robot_ref:
-            robot_ref[0].stop()
-
-    old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        try:
-            session = open_session_from_args(args, "robot", cfg.swarm)
-        except ZenohSetupError as e:
-            print(f"patternrl robot: error: {e}", file=sys.stderr)
-            return 2
-        # the robot undeclares what it declared, then the session closes
-        with session, contextlib.closing(Robot(cfg, brain, session, world, safety, log)) as robot:
-            robot_ref.append(robot)
-            if stop.is_set():
-                return 0
-            robot.start()
-            heap.settle()
-            log(
-                "info",
-                "start",
-                f"swarm {cfg.swarm}, {cfg.mode}, brain {short_id(brain.brain_id)} "
-                f"({brain.spec.name}), safety {'orca' if safety else 'off'}, "
-                f"decision {kernel_status()}",
-            )
-            code = robot.run()
-        heavy = heavy_modules()
-        st = robot.stats
-        log(
-            "info",
-            "stop",
-            f"after {st.steps} steps",
-            dropped=st.dropped,
-            errors=st.errors,
-            backlog_skipped=robot.backlog_skipped,
-            heavy_modules=",".join(heavy) if heavy else "none",
-            **({} if robot.slot_talk is None else {
-                "slots_heard": robot.slot_talk.heard_messages,
-                "leader_steps": robot.slot_talk.adopted_steps,
-                "frame_steps": robot.slot_talk.frame_steps}),
-        )
-        return code
-    except Exception as e:  # unexpected: one line, no traceback
-        print(f"patternrl robot: error: {one_line(f'{type(e).__name__}: {e}')}", file=sys.stderr)
-        return 1
-    finally:
-        for s, h in old_handlers.items():
-            signal.signal(s, h)
