@@ -12,7 +12,8 @@ module                    concept
 ========================= ===============================================
 :mod:`.neighbours`        a robot's nearest others (ties by id), the one
                           neighbour choice of the row and the filter
-:mod:`.orca`              the ORCA safety filter and the speed clamp
+:mod:`.orca_lp`           ORCA's linear programs and the speed clamp
+:mod:`.orca`              the ORCA safety filter and its guard
 :mod:`.general_row`       the general (and plan) observation row
 :mod:`.lsap`              the minimum-cost assignment's solver (scipy's
                           shortest augmenting path, cold or warm)
@@ -30,7 +31,8 @@ from pathlib import Path
 
 __all__ = ["MODULES", "compiled_modules", "kernel_status", "stale_modules"]
 
-MODULES = ("neighbours", "orca", "general_row", "lsap", "assignment", "plan_frame")
+MODULES = ("neighbours", "orca_lp", "orca", "general_row", "lsap", "assignment",
+           "plan_frame")
 """The compiled modules of this package (each also runs as Python)."""
 
 

@@ -1,14 +1,14 @@
 # cython: boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""The ORCA safety filter, with its neighbour choice, and the speed clamp: written once.
+"""The ORCA safety filter, with its neighbour choice and its last-resort guard: written once.
 
 ORCA (van den Berg et al., "Reciprocal n-body collision avoidance", 2011; RVO2's
 ``Agent::computeNewVelocity``, agent-agent part): each of the robot's nearest
 neighbours in range gives one half-plane of velocities that keeps the pair apart for
 the time horizon, each robot taking half the responsibility; a 2-d linear program
 picks the velocity closest to the preferred one within v_max, and when the
-half-planes leave no room, the one that violates them least. A new constraint (a
-margin for an uncertain view, a wheel's limits, an obstacle) is a new loop in
-:meth:`OrcaFilter.robot`, here and nowhere else.
+half-planes leave no room, the one that violates them least (:mod:`runtime.core.orca_lp`,
+with the speed clamp). A new constraint (a margin for an uncertain view, a wheel's
+limits, an obstacle) is a new loop in :meth:`OrcaFilter.robot`, here and nowhere else.
 
 :class:`OrcaFilter` holds the filter's settings and its scratch; :meth:`OrcaFilter.robot`
 filters one robot's velocity (the robot's own step), :meth:`OrcaFilter.teams` every
@@ -24,15 +24,15 @@ import numpy as np
 if cython.compiled:
     from cython.cimports.libc.math import cos, hypot, isfinite, sin, sqrt
     from cython.cimports.runtime.core.neighbours import nearest
+    from cython.cimports.runtime.core.orca_lp import LinearProgram, clamp
 else:
     from math import cos, hypot, isfinite, sin, sqrt
 
     from runtime.core.neighbours import nearest
+    from runtime.core.orca_lp import LinearProgram, clamp
 
-__all__ = ["CHANGE_TOL_MPS", "GUARD_REF_COLUMNS", "MAX_NEIGHBOURS", "OrcaFilter", "clamp_speed"]
+__all__ = ["CHANGE_TOL_MPS", "GUARD_REF_COLUMNS", "MAX_NEIGHBOURS", "OrcaFilter"]
 
-RVO_EPS = cython.declare(cython.double, 1e-5)
-"""RVO2's tolerance for parallel lines in the linear programs."""
 CHANGE_TOL_MPS = 1e-9
 """A filtered velocity this close to the preferred one counts as unchanged (m/s)."""
 _CHANGE_TOL = cython.declare(cython.double, 1e-9)  # the same, as a C constant
@@ -40,194 +40,12 @@ MAX_NEIGHBOURS = 64
 """The most neighbours the filter considers (``OrcaParams.max_neighbours``)."""
 GUARD_REF_COLUMNS = 6
 """The numbers per peer of the guard's references (``guard_ref`` of :meth:`OrcaFilter.robot`)."""
-
-
 GUARD_PASSES = 4
 """Rounds of projection on the guard's bounds before it scales what is left (see
 :meth:`OrcaFilter.robot`)."""
 _GUARD_PASSES = cython.declare(cython.Py_ssize_t, 4)  # the same, as a C constant
 MARGIN_ROOM_M = 1e-3
 """Inside a pair's uncertainty margin, the margin shrinks to the distance less this (m)."""
-
-
-@cython.cfunc
-@cython.exceptval(check=False)
-def _clamp(vx: cython.double, vy: cython.double,
-           v_max: cython.double) -> tuple[cython.double, cython.double]:
-    a: cython.double = hypot(vx, vy)
-    b: cython.double = sqrt(vx * vx + vy * vy)
-    sp: cython.double = a if a > b else b
-    s: cython.double
-    if sp > 1e300:  # the squares overflow: scale first, the direction is what counts
-        vx = vx * 1e-300
-        vy = vy * 1e-300
-        a = hypot(vx, vy)
-        b = sqrt(vx * vx + vy * vy)
-        sp = a if a > b else b
-    if sp > v_max:
-        s = v_max / sp
-        vx = vx * s
-        vy = vy * s
-        # within v_max both ways of taking the norm, and a unit in the last place below it:
-        # C libraries' hypot and Python's round differently by that much
-        lim: cython.double = v_max * (1.0 - 1e-16)
-        while True:
-            a = hypot(vx, vy)
-            b = sqrt(vx * vx + vy * vy)
-            if not (a if a > b else b) > lim:
-                break
-            vx = vx * (1.0 - 1e-15)
-            vy = vy * (1.0 - 1e-15)
-    return vx, vy
-
-
-@cython.ccall
-def clamp_speed(vx: cython.double, vy: cython.double,
-                v_max: cython.double) -> tuple[cython.double, cython.double]:
-    """(vx, vy) scaled down to norm <= v_max (m/s): a clamped velocity's norm is at most v_max
-    whichever way it is taken (``hypot`` of C or Python, or ``sqrt(x*x + y*y)``)."""
-    return _clamp(vx, vy, v_max)
-
-
-# --------------------------------------------- linear programs (RVO2's 1, 2 and 3)
-# A line is a row [px, py, dx, dy] of a (m, 4) array: a point on it and its unit
-# direction; the allowed half-plane lies to the left of the direction.
-
-
-@cython.cfunc
-@cython.exceptval(check=False)
-def _lp1(lines: cython.double[:, ::1], no: cython.Py_ssize_t, radius: cython.double,
-         ox: cython.double, oy: cython.double, dir_opt: cython.bint,
-         out: cython.double[::1]) -> cython.bint:
-    """The best point on line ``no`` within the circle and the lines before it, into
-    ``out[0:2]``; False when there is none."""
-    px: cython.double = lines[no, 0]
-    py: cython.double = lines[no, 1]
-    dx: cython.double = lines[no, 2]
-    dy: cython.double = lines[no, 3]
-    dot: cython.double = px * dx + py * dy
-    disc: cython.double = dot * dot + radius * radius - (px * px + py * py)
-    sq: cython.double
-    tl: cython.double
-    tr: cython.double
-    t: cython.double
-    den: cython.double
-    num: cython.double
-    i: cython.Py_ssize_t
-    if disc < 0.0:
-        return False  # the max-speed circle misses this line entirely
-    sq = sqrt(disc)
-    tl = -dot - sq
-    tr = -dot + sq
-    for i in range(no):
-        den = dx * lines[i, 3] - dy * lines[i, 2]
-        num = lines[i, 2] * (py - lines[i, 1]) - lines[i, 3] * (px - lines[i, 0])
-        if abs(den) <= RVO_EPS:
-            if num < 0.0:
-                return False  # parallel and on the wrong side
-            continue
-        t = num / den
-        if den >= 0.0:
-            if t < tr:
-                tr = t
-        elif t > tl:
-            tl = t
-        if tl > tr:
-            return False
-    if dir_opt:
-        t = tr if ox * dx + oy * dy > 0.0 else tl
-    else:
-        t = dx * (ox - px) + dy * (oy - py)
-        if t < tl:
-            t = tl
-        elif t > tr:
-            t = tr
-    out[0] = px + t * dx
-    out[1] = py + t * dy
-    return True
-
-
-@cython.cfunc
-@cython.exceptval(check=False)
-def _lp2(lines: cython.double[:, ::1], m: cython.Py_ssize_t, radius: cython.double,
-         ox: cython.double, oy: cython.double, dir_opt: cython.bint,
-         out: cython.double[::1]) -> cython.Py_ssize_t:
-    """The point closest to the optimum (ox, oy) that satisfies lines[:m], into
-    ``out[0:2]``; returns the line that failed (m on success)."""
-    n2: cython.double
-    s: cython.double
-    i: cython.Py_ssize_t
-    if dir_opt:
-        out[0] = ox * radius
-        out[1] = oy * radius
-    else:
-        n2 = ox * ox + oy * oy
-        if n2 > radius * radius:
-            s = radius / sqrt(n2)
-            out[0] = ox * s
-            out[1] = oy * s
-        else:
-            out[0] = ox
-            out[1] = oy
-    for i in range(m):
-        if lines[i, 2] * (lines[i, 1] - out[1]) - lines[i, 3] * (lines[i, 0] - out[0]) > 0.0:
-            if not _lp1(lines, i, radius, ox, oy, dir_opt, out):
-                return i
-    return m
-
-
-@cython.cfunc
-@cython.exceptval(check=False)
-def _lp3(lines: cython.double[:, ::1], m: cython.Py_ssize_t, begin: cython.Py_ssize_t,
-         radius: cython.double, proj: cython.double[:, ::1], out: cython.double[::1],
-         found: cython.double[::1]) -> cython.void:
-    """The infeasible case: the velocity of least largest violation, from ``out[0:2]``
-    (lines[:begin] hold); ``proj`` (m, 4) and ``found`` (2,) are scratch."""
-    distance: cython.double = 0.0
-    i: cython.Py_ssize_t
-    j: cython.Py_ssize_t
-    k: cython.Py_ssize_t
-    px: cython.double
-    py: cython.double
-    dx: cython.double
-    dy: cython.double
-    det: cython.double
-    t: cython.double
-    ux: cython.double
-    uy: cython.double
-    un: cython.double
-    for i in range(begin, m):
-        px = lines[i, 0]
-        py = lines[i, 1]
-        dx = lines[i, 2]
-        dy = lines[i, 3]
-        if dx * (py - out[1]) - dy * (px - out[0]) > distance:
-            k = 0
-            for j in range(i):
-                det = dx * lines[j, 3] - dy * lines[j, 2]
-                if abs(det) <= RVO_EPS:
-                    if dx * lines[j, 2] + dy * lines[j, 3] > 0.0:
-                        continue  # the same direction: line j is implied
-                    proj[k, 0] = 0.5 * (px + lines[j, 0])
-                    proj[k, 1] = 0.5 * (py + lines[j, 1])
-                else:
-                    t = (lines[j, 2] * (py - lines[j, 1]) - lines[j, 3] * (px - lines[j, 0])) / det
-                    proj[k, 0] = px + t * dx
-                    proj[k, 1] = py + t * dy
-                ux = lines[j, 2] - dx
-                uy = lines[j, 3] - dy
-                un = sqrt(ux * ux + uy * uy)
-                proj[k, 2] = ux / un
-                proj[k, 3] = uy / un
-                k += 1
-            if _lp2(proj, k, radius, -dy, dx, True, found) >= k:
-                out[0] = found[0]
-                out[1] = found[1]
-            # else: keep the previous result (a numerical failure, as RVO2 does)
-            distance = dx * (py - out[1]) - dy * (px - out[0])
-
-
-# ------------------------------------------------------------------ the filter
 
 
 @cython.cclass
@@ -247,10 +65,7 @@ class OrcaFilter:
     _ids: cython.Py_ssize_t[:, :, ::1]
     _d2: cython.double[:, :, ::1]
     _count: cython.Py_ssize_t[:, ::1]
-    _lines: cython.double[:, ::1]
-    _proj: cython.double[:, ::1]
-    _out: cython.double[::1]
-    _found: cython.double[::1]
+    _lp: LinearProgram
     _no_ref: cython.double[:, :, ::1]
     _bound: cython.double[:, ::1]
 
@@ -286,10 +101,7 @@ class OrcaFilter:
         k = max(max_neighbours, 1)
         self._ids = None  # the neighbour tables, made for the first batch's shape
         self._tables(1, 1)
-        self._lines = np.zeros((k, 4))
-        self._proj = np.zeros((k, 4))
-        self._out = np.zeros(2)
-        self._found = np.zeros(2)
+        self._lp = LinearProgram(k)
         self._no_ref = np.zeros((0, 0, 0))
         self._bound = np.zeros((3 * k, 4))  # each neighbour: its direction and the cone's edges
 
@@ -375,10 +187,10 @@ class OrcaFilter:
               guard_ref: cython.const[cython.double][:, :, ::1]
               ) -> tuple[cython.double, cython.double, cython.bint, cython.double]:
         """Robot i of team e, its neighbours at [a, b] of the tables: :meth:`robot`."""
-        pref_x, pref_y = _clamp(pref_x, pref_y, self.v_max)
+        pref_x, pref_y = clamp(pref_x, pref_y, self.v_max)
         m: cython.Py_ssize_t = self._count[a, b]
-        lines = self._lines
-        out = self._out
+        lines = self._lp.lines
+        out = self._lp.out
         c: cython.Py_ssize_t
         j: cython.Py_ssize_t
         ox: cython.double = vel[e, i, 0]
@@ -508,10 +320,8 @@ class OrcaFilter:
                         optx = cs * pref_x + s * pref_y
                         opty = -s * pref_x + cs * pref_y
                         break
-            c = _lp2(lines, m, v_max, optx, opty, False, out)
-            if c < m:
-                _lp3(lines, m, c, v_max, self._proj, out, self._found)
-            rx, ry = _clamp(out[0], out[1], v_max)  # the LP's rounding: exactly within v_max
+            self._lp.solve(m, v_max, optx, opty)
+            rx, ry = clamp(out[0], out[1], v_max)  # the LP's rounding: exactly within v_max
             if self.guard > 0.0:
                 rx, ry = self._guard(e, i, a, b, m, pos, guard_ref, rx, ry)
         s = hypot(rx - pref_x, ry - pref_y)
@@ -664,9 +474,9 @@ class OrcaFilter:
                     vy = vy - over * out[c, 1]
                     moved = True
             if not moved:
-                return _clamp(vx, vy, self.v_max)  # a retreat may ask for more than v_max
+                return clamp(vx, vy, self.v_max)  # a retreat may ask for more than v_max
         s = self._scale(k, vx, vy, False)  # then scale what is left (zero keeps them all)
-        return _clamp(vx * s, vy * s, self.v_max)
+        return clamp(vx * s, vy * s, self.v_max)
 
     @cython.ccall
     def guard_scale(self, e: cython.Py_ssize_t, i: cython.Py_ssize_t,

@@ -4,11 +4,12 @@ Every step, each robot replaces its brain's *preferred* velocity by the velocity
 closest to it that ORCA (optimal reciprocal collision avoidance, van den Berg,
 Guy, Lin and Manocha, 2011) deems collision-free with respect to its
 neighbours. The algorithm is a line-for-line port of RVO2's
-``Agent::computeNewVelocity`` (agent-agent part) with its three linear programs
-``linearProgram1/2/3``, written once in :mod:`runtime.core.orca` (compiled at
-install, the same source runs as Python without a compiler) with its neighbour
-choice inside it. This module holds the filter's tuning (:class:`OrcaParams`), the
-landing horizon and the one-robot convenience call :func:`orca_filter`.
+``Agent::computeNewVelocity`` (agent-agent part), written once in
+:mod:`runtime.core.orca` with its neighbour choice inside it, and of its three linear
+programs ``linearProgram1/2/3``, in :mod:`runtime.core.orca_lp` (both compiled at
+install, the same source runs as Python without a compiler). This module holds the
+filter's tuning (:class:`OrcaParams`), the landing horizon and the one-robot
+convenience call :func:`orca_filter`.
 
 The filter works from the robot's own observation only: neighbours' positions
 relative to its own and their velocities (which the caller estimates from two
@@ -129,7 +130,8 @@ import numpy as np
 import numpy.typing as npt
 
 from runtime.conditions import PERFECT, Conditions
-from runtime.core.orca import CHANGE_TOL_MPS, OrcaFilter, clamp_speed
+from runtime.core.orca import CHANGE_TOL_MPS, OrcaFilter
+from runtime.core.orca_lp import clamp_speed
 from runtime.decision.estimator import steady_sigma
 from runtime.decision.patterns import min_spacing
 from runtime.world_config import DEFAULT_WORLD, WorldConfig

@@ -24,27 +24,33 @@ def _from_source(name: str, module_name: str) -> ModuleType:
 
 @functools.cache
 def python_core() -> SimpleNamespace:
-    """``neighbours``, ``general_row`` and ``orca`` run uncompiled, from their source.
+    """``neighbours``, ``general_row``, ``orca_lp`` and ``orca`` run uncompiled, from their
+    source.
 
-    The row builder and the filter import ``nearest`` from ``runtime.core.neighbours``;
-    while they load, that name points at the uncompiled neighbours module, so the three
-    run as Python together. The compiled module is put back afterwards.
+    The row builder and the filter import ``nearest`` from ``runtime.core.neighbours``, the
+    filter its linear programs from ``runtime.core.orca_lp``; while they load, those names
+    point at the uncompiled modules, so the four run as Python together. The compiled
+    modules are put back afterwards.
     """
-    import runtime.core.neighbours  # noqa: F401 - the module to put back
+    import runtime.core.neighbours
+    import runtime.core.orca_lp  # noqa: F401 - the modules to put back
 
-    key = "runtime.core.neighbours"
-    compiled = sys.modules[key]
-    neighbours = _from_source("neighbours", key)
-    sys.modules[key] = neighbours
+    keys = ("runtime.core.neighbours", "runtime.core.orca_lp")
+    compiled = {key: sys.modules[key] for key in keys}
+    neighbours = _from_source("neighbours", keys[0])
+    orca_lp = _from_source("orca_lp", keys[1])
+    sys.modules[keys[0]], sys.modules[keys[1]] = neighbours, orca_lp
     try:
         general_row = _from_source("general_row", "runtime_core_general_row_source")
         orca = _from_source("orca", "runtime_core_orca_source")
     finally:
-        sys.modules[key] = compiled
-    for mod in (neighbours, general_row, orca):
+        sys.modules.update(compiled)
+    for mod in (neighbours, general_row, orca_lp, orca):
         assert not mod.cython.compiled
     assert general_row.nearest is neighbours.nearest and orca.nearest is neighbours.nearest
-    return SimpleNamespace(neighbours=neighbours, general_row=general_row, orca=orca)
+    assert orca.LinearProgram is orca_lp.LinearProgram and orca.clamp is orca_lp.clamp
+    return SimpleNamespace(neighbours=neighbours, general_row=general_row, orca_lp=orca_lp,
+                           orca=orca)
 
 
 @functools.cache

@@ -1,5 +1,6 @@
 """The ORCA filter (runtime/core/orca.py) on hand-worked cases, its landing horizon and
-its speed clamp; and its source run as Python against the compiled module.
+its speed clamp (runtime/core/orca_lp.py); and its source run as Python against the
+compiled module.
 
 The half-planes here are computed in the test from the ORCA paper (van den Berg, Guy,
 Lin and Manocha, "Reciprocal n-body collision avoidance", 2011, section 5.2): with p
@@ -23,7 +24,8 @@ import pytest
 from support.core_source import python_core
 
 from runtime.core import orca as core_orca
-from runtime.core.orca import MAX_NEIGHBOURS, OrcaFilter, clamp_speed
+from runtime.core.orca import MAX_NEIGHBOURS, OrcaFilter
+from runtime.core.orca_lp import clamp_speed
 from runtime.decision.pipeline import commands
 from runtime.decision.safety import OrcaParams, landing, make_filter
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
@@ -257,7 +259,7 @@ def norms_within(vx: float, vy: float, v_max: float, hypot: Any = np.hypot) -> b
 
 @pytest.mark.parametrize("clamp", [clamp_speed, "source"], ids=["compiled", "source"])
 def test_the_speed_clamp_is_exact_both_ways_of_taking_the_norm(clamp: Any) -> None:
-    fn = python_core().orca.clamp_speed if clamp == "source" else clamp
+    fn = python_core().orca_lp.clamp_speed if clamp == "source" else clamp
     hypot = math.hypot if clamp == "source" else np.hypot
     rng = np.random.default_rng(4)
     cases = 0
@@ -367,15 +369,15 @@ def test_the_source_run_as_python_filters_as_the_compiled_module(
     """The same source in two execution modes: the same velocities (within the last bit
     of a libm hypot against Python's) and the same ``changed``, robot by robot and for a
     batch, over crowds that reach every branch (checked: the infeasible LP)."""
-    py = python_core().orca
+    py, py_lp = python_core().orca, python_core().orca_lp
     lp3_in: set[str] = set()
-    real_lp3, crowd_name = py._lp3, [""]
+    real_lp3, crowd_name = py_lp._lp3, [""]
 
     def counting_lp3(*args: Any) -> None:
         lp3_in.add(crowd_name[0])
         real_lp3(*args)
 
-    monkeypatch.setattr(py, "_lp3", counting_lp3)
+    monkeypatch.setattr(py_lp, "_lp3", counting_lp3)
     rng = np.random.default_rng(int(tau * 100 + keep_right * 10))
     for cap in (1, 3, 10):
         args = (cap, 2.0, 2.0 * (W.radius_m + 0.02), W.dt_s, keep_right, W.v_max_mps)
