@@ -11,7 +11,8 @@ shipped general brain), pooled over the shapes and episodes:
 * ``formed`` -- formed at least once (first passage), %;
 * ``held`` -- of the formed, the share that held, %;
 * ``coll/ep`` -- colliding pairs per episode, the hold window included;
-* ``steps`` -- steps to the first passage over the lower bound (mean over formed).
+* ``steps`` -- steps to the first passage over the lower bound (mean over formed);
+* ``travel`` (``--json`` only) -- metres travelled over the least travel (mean over formed).
 
 ``adversary:charge`` (:mod:`trainer.adversary`) drives every robot at full speed at its
 nearest peer: it never forms, and its column is the safety filter's alone (collisions).
@@ -109,7 +110,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
         str(ROOT / path) if path.endswith(".onnx") else path)
     cond = parse_conditions(CASES.get(case, case))
     tot: dict[str, float] = {"episodes": 0, "ok": 0, "formed": 0, "held": 0, "coll": 0,
-                             "steps": 0.0, "wall": 0.0}
+                             "steps": 0.0, "travel": 0.0, "wall": 0.0}
     for k, shape in enumerate(shapes):
         start, _, target = shape.rpartition(">")
         r = evaluate_brain(brain, target, n, episodes, seed=seed + k, conditions=cond,
@@ -125,6 +126,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
         tot["coll"] += r.collisions
         tot["steps"] += sum(s / lb for s, lb, f in zip(st["steps"], st["lower_bound_steps"],
                                                       formed, strict=True) if f)
+        tot["travel"] += sum(m / lb for m, lb, f in zip(st["travel_m"], st["lower_bound_travel_m"],
+                                                        formed, strict=True) if f)
         tot["wall"] += r.wall_s
     e, f = tot["episodes"], tot["formed"]
     return {
@@ -134,6 +137,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
         "held": tot["held"] / f if f else math.nan,
         "collisions_per_episode": tot["coll"] / e,
         "steps_ratio": tot["steps"] / f if f else math.nan,
+        "travel_ratio": tot["travel"] / f if f else math.nan,
         "wall_s": tot["wall"],
     }
 

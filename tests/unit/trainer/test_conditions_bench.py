@@ -93,4 +93,5 @@ def test_a_shape_a_to_b_starts_every_episode_from_a_formed(bench: ModuleType) ->
                        conditions=parse_conditions(bench.CASES["noise5"]), estimator=True,
                        start_pattern="cross", progress=False)
     assert row["formed"] == r.formed_rate and row["steps_ratio"] == pytest.approx(r.steps_ratio)
+    assert row["travel_ratio"] == pytest.approx(r.travel_ratio) and r.travel_ratio > 1.0
     assert bench.TRANSITIONS[0] == "circle>cross"
