@@ -228,13 +228,24 @@ the wheels add their 2 cm/s of noise, more than the correction. Under the ``hars
 the team formed and then drifted apart (held 44 % of the formed at a 0.55 m spacing). There
 a robot whose way to its slot in the landing is under ``park_m`` (0.6 of the formed
 tolerance, 1.5 cm) stays where it is, exactly still, until the way grows past ``unpark_m``
-(the tolerance, 2.5 cm). Measured (`rule:frame-balanced` + the tracker, n = 10, 100 episodes
+(0.8 of it, 2.0 cm; it was the tolerance, 2.5 cm, below). Measured (`rule:frame-balanced` + the tracker, n = 10, 100 episodes
 on ``benchmarks/conditions.py``'s shapes and seeds): ``harsh`` with the shapes spaced 0.55 m
 44 % -> 78 %, at the built-ins' 0.40 m 13 % -> 22 % (in 40 of those episodes, 1.0 / 2.0 cm
 held 41 % of the formed where 1.5 / 2.5 held 88 %, 2.0 / 3.0 71 %). Elsewhere it did not
 help and is off: with noise on holonomic wheels (the realistic preset) or on a differential
 drive without wheel noise it took more steps for the same success or less (40 episodes:
 realistic 1.24x -> 1.28x, 10 cm noise 95 % -> 85 %).
+
+Moving again past 2.0 cm, not 2.5: in the team's one frame (the leader's) a robot knows its
+way to its slot, but the formation is judged about the team's own mean, which the parked
+robots' offsets move. A robot parked 2-2.5 cm off, its team's mean a centimetre the other
+way, stood 3-3.5 cm off for the rest of the hold (traced: cross, ``--seed 3000001``, the
+failed holds). Measured, `rule:frame-balanced` + the tracker under ``harsh``
+(``benchmarks/conditions.py``, 100 episodes per set, 0 collisions in every cell): n = 10 on
+five seed sets (3000000-7000000) 69.4 % -> 74.6 % held (67 / 67 / 72 / 69 / 72 -> 80 / 68 /
+75 / 77 / 73), 2.81x -> 2.78x; n = 25 77 % -> 86 %, 3.44x -> 3.34x; n = 8 on two sets 68 % ->
+70 % (64 / 72 -> 74 / 66); n = 10 spaced 0.55 m 91 % -> 93 %. Other bands (1.0 / 1.5 cm,
+1.0 / 2.0, 1.25 / 1.75, 1.5 / 1.75, 1.5 / 2.25, 2.0 / 2.5) held 67-81 % on the first set.
 
 **The landing's six steps.** Under noise a plan lands in the centroid frame for its last
 :data:`NOISY_LANDING_STEPS` (6) steps, where it was 2. The last steps of a plan bring every
@@ -448,7 +459,7 @@ def settle_for(conditions: Conditions, estimator: bool = False,
                   gain=SETTLE_GAIN, centroid_steps=math.inf, filter_steps=NOISY_LANDING_STEPS,
                   sigma_m=conditions.noise_m, own_pace=True,
                   park_m=PARK_SHARE * world.formed_tol_m if parks else 0.0,
-                  unpark_m=world.formed_tol_m if parks else 0.0)
+                  unpark_m=UNPARK_SHARE * world.formed_tol_m if parks else 0.0)
 
 
 
@@ -464,6 +475,10 @@ LANDS_AS_PLANNED_LATE = 1
 
 PARK_SHARE = 0.6
 """Where a robot parks (``Settle.park_m``), as a share of the formed tolerance."""
+UNPARK_SHARE = 0.8
+"""Where a parked robot moves again (``Settle.unpark_m``), as a share of the formed
+tolerance: below it, so that the team's mean offset in its shared frame has room under the
+tolerance (see "Parked inside the tolerance")."""
 
 
 SETTLE_SIGMAS = 2.5

@@ -547,7 +547,7 @@ def test_a_differential_drive_on_noisy_wheels_parks_inside_the_tolerance(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """``harsh`` (a differential drive, wheels that add noise as they move): a robot whose way
     to its slot in the landing is under 1.5 cm stays exactly still until it grows past
-    2.5 cm; without a plan (no way left) and on holonomic or noiseless wheels it never
+    2.0 cm; without a plan (no way left) and on holonomic or noiseless wheels it never
     parks. On a circle of 8 spaced 0.6 m, 12 episodes, parked robots hold the formation
     more often than the same robots correcting every millimetre, each in its own centroid
     frame (``--agree off``; in the leader's frame, the default, both held 95 %)."""
@@ -558,19 +558,19 @@ def test_a_differential_drive_on_noisy_wheels_parks_inside_the_tolerance(
 
     s = settle_for(PRESETS["harsh"], estimator=True)
     assert s is not None and (s.park_m, s.unpark_m) == pytest.approx(
-        (0.6 * DEFAULT_WORLD.formed_tol_m, DEFAULT_WORLD.formed_tol_m))
+        (0.6 * DEFAULT_WORLD.formed_tol_m, 0.8 * DEFAULT_WORLD.formed_tol_m))
     for other in ("realistic", "noise_m=0.1,kinematics=diff", "realistic,act_noise_mps=0.05"):
         o = settle_for(parse_conditions(other), estimator=True)
         assert o is not None and o.park_m == 0.0
     lander = Lander(s, 0.1)
     assert lander.apply(0.2, 0.1, to_slot_m=0.01) == (0.0, 0.0)  # parks
-    assert lander.apply(0.2, 0.1, to_slot_m=0.02) == (0.0, 0.0)  # stays parked
-    assert lander.apply(0.2, 0.1, to_slot_m=0.03) != (0.0, 0.0)  # moves again
-    assert lander.apply(0.2, 0.1, to_slot_m=0.02) != (0.0, 0.0)  # not parked: not yet
+    assert lander.apply(0.2, 0.1, to_slot_m=0.019) == (0.0, 0.0)  # stays parked
+    assert lander.apply(0.2, 0.1, to_slot_m=0.021) != (0.0, 0.0)  # moves again
+    assert lander.apply(0.2, 0.1, to_slot_m=0.019) != (0.0, 0.0)  # not parked: not yet
     assert lander.apply(0.01, 0.0) != (0.0, 0.0)  # no plan, no parking
     lander.apply(0.2, 0.1, to_slot_m=0.01)
     lander.reset()  # a new landing starts unparked
-    assert lander.apply(0.2, 0.1, to_slot_m=0.02) != (0.0, 0.0)
+    assert lander.apply(0.2, 0.1, to_slot_m=0.019) != (0.0, 0.0)
 
     import runtime.decision.local as local
     from runtime.brain.brain import load_brain
