@@ -228,9 +228,10 @@ the wheels add their 2 cm/s of noise, more than the correction. Under the ``hars
 the team formed and then drifted apart (held 44 % of the formed at a 0.55 m spacing). There
 a robot whose way to its slot in the landing is under ``park_m`` (0.6 of the formed
 tolerance, 1.5 cm) stays where it is, exactly still, until the way grows past ``unpark_m``
-(0.8 of it, 2.0 cm; it was the tolerance, 2.5 cm, below). Measured (`rule:frame-balanced` + the tracker, n = 10, 100 episodes
-on ``benchmarks/conditions.py``'s shapes and seeds): ``harsh`` with the shapes spaced 0.55 m
-44 % -> 78 %, at the built-ins' 0.40 m 13 % -> 22 % (in 40 of those episodes, 1.0 / 2.0 cm
+(0.8 of it, 2.0 cm; it was the tolerance, 2.5 cm, below). Measured (`rule:frame-balanced`
++ the tracker, n = 10, 100 episodes on ``benchmarks/conditions.py``'s shapes and seeds):
+``harsh`` with the shapes spaced 0.55 m 44 % -> 78 %, at the built-ins' 0.40 m 13 % -> 22 %
+(in 40 of those episodes, 1.0 / 2.0 cm
 held 41 % of the formed where 1.5 / 2.5 held 88 %, 2.0 / 3.0 71 %). Elsewhere it did not
 help and is off: with noise on holonomic wheels (the realistic preset) or on a differential
 drive without wheel noise it took more steps for the same success or less (40 episodes:
