@@ -239,14 +239,11 @@ realistic 1.24x -> 1.28x, 10 cm noise 95 % -> 85 %).
 
 Moving again past 2.0 cm, not 2.5: in the team's one frame (the leader's) a robot knows its
 way to its slot, but the formation is judged about the team's own mean, which the parked
-robots' offsets move. A robot parked 2-2.5 cm off, its team's mean a centimetre the other
-way, stood 3-3.5 cm off for the rest of the hold (traced: cross, ``--seed 3000001``, the
-failed holds). Measured, `rule:frame-balanced` + the tracker under ``harsh``
-(``benchmarks/conditions.py``, 100 episodes per set, 0 collisions in every cell): n = 10 on
-five seed sets (3000000-7000000) 69.4 % -> 74.6 % held (67 / 67 / 72 / 69 / 72 -> 80 / 68 /
-75 / 77 / 73), 2.81x -> 2.78x; n = 25 77 % -> 86 %, 3.44x -> 3.34x; n = 8 on two sets 68 % ->
-70 % (64 / 72 -> 74 / 66); n = 10 spaced 0.55 m 91 % -> 93 %. Other bands (1.0 / 1.5 cm,
-1.0 / 2.0, 1.25 / 1.75, 1.5 / 1.75, 1.5 / 2.25, 2.0 / 2.5) held 67-81 % on the first set.
+robots' offsets move; a robot parked 2-2.5 cm off, its team's mean a centimetre the other
+way, stood 3-3.5 cm off for the rest of the hold. `rule:frame-balanced` + the tracker under
+``harsh`` (``benchmarks/conditions.py``, 0 collisions): n = 10 on five seed sets 69.4 % ->
+74.6 % held, n = 25 77 % -> 86 % (docs/conditions.md, "Under `harsh`: a parked robot moves
+again sooner").
 
 **The landing's six steps.** Under noise a plan lands in the centroid frame for its last
 :data:`NOISY_LANDING_STEPS` (6) steps, where it was 2. The last steps of a plan bring every
