@@ -36,6 +36,11 @@ heart>circle).
     .venv/bin/python benchmarks/conditions.py [--robots 10] [--episodes 20]
         [--cases perfect,noise5,...] [--brains rule:frame-balanced,...] [--json]
 
+``--safety orca-no-guard`` runs every robot's filter without its last-resort guard, and
+``--safety off`` the brains raw: not how a robot runs, but where the steps go (the guard bounds
+each pair from its last view, against a peer that may have stopped since; docs/conditions.md,
+"Late views at n = 50: the guard is the rest").
+
 ``--quick``: 4 episodes, circle and heart only.
     .venv/bin/python benchmarks/conditions.py --robots 8 --transitions \
         --cases "realistic,k_nearest=4" --brains rule:frame-balanced+est
@@ -58,6 +63,7 @@ sys.path.insert(0, str(ROOT))
 from runtime.brain.brain import load_brain  # noqa: E402 -- path set-up
 from runtime.conditions import PRESETS, parse_conditions  # noqa: E402
 from runtime.decision.agreement import DEFAULT_AGREE  # noqa: E402
+from runtime.decision.safety import SAFETY_MODES, safety_params  # noqa: E402
 from runtime.errors import InputError  # noqa: E402
 from runtime.world_config import DEFAULT_WORLD, WorldConfig  # noqa: E402
 from trainer.adversary import ADVERSARY, ChargeBrain  # noqa: E402
@@ -97,7 +103,8 @@ def split_cases(text: str) -> list[str]:
 
 
 def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
-             shapes: tuple[str, ...], world: WorldConfig = DEFAULT_WORLD) -> dict[str, Any]:
+             shapes: tuple[str, ...], world: WorldConfig = DEFAULT_WORLD,
+             safety: str = "orca") -> dict[str, Any]:
     path, *flags = brain_name.split("+")
     unknown = set(flags) - {"est", "naive", "agree", "alone", "frame"}
     if unknown:
@@ -115,7 +122,8 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
         start, _, target = shape.rpartition(">")
         r = evaluate_brain(brain, target, n, episodes, seed=seed + k, conditions=cond,
                            estimator=estimator, progress=False, naive=naive, world=world,
-                           agree=agree, start_pattern=start or None)
+                           agree=agree, start_pattern=start or None,
+                           safety=safety_params(safety))
         st = r.episode_stats
         formed = [f > 0 for f in st["formed"]]
         held = [h >= 0.9 for h in st["held"]]
@@ -132,6 +140,7 @@ def run_case(brain_name: str, case: str, n: int, episodes: int, seed: int,
     e, f = tot["episodes"], tot["formed"]
     return {
         "brain": brain_name, "case": case, "conditions": cond.name(), "robots": n,
+        "safety": safety,
         "episodes": int(e),
         "success": tot["ok"] / e, "formed": f / e,
         "held": tot["held"] / f if f else math.nan,
@@ -176,6 +185,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--spacing", type=float, default=DEFAULT_WORLD.pattern_spacing_m,
                    metavar="M", help="the shapes' closest pair (m; default "
                    f"{DEFAULT_WORLD.pattern_spacing_m:g}, the built-ins')")
+    p.add_argument("--safety", choices=SAFETY_MODES, default="orca",
+                   help="the robots' filter (default 'orca', as they run), the raw brains "
+                   "('off'), or ORCA without its last-resort guard ('orca-no-guard': not safe on "
+                   "imperfect views; it measures what the guard costs)")
     p.add_argument("--quick", action="store_true", help="4 episodes, circle and heart")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     args = p.parse_args(argv)
@@ -196,18 +209,21 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for case in cases:
         for b in brains:
-            rows.append(run_case(b, case, args.robots, episodes, args.seed, shapes, world))
+            rows.append(run_case(b, case, args.robots, episodes, args.seed, shapes, world,
+                                 args.safety))
             if not args.json:
                 print(f"  {case:<10} {b:<28} {_cell(rows[-1])}", file=sys.stderr, flush=True)
     if args.json:
         print(json.dumps({"robots": args.robots, "episodes_per_shape": episodes,
+                          "safety": args.safety,
                           "shapes": shapes, "pattern_spacing_m": args.spacing, "rows": rows,
                           "wall_s": time.perf_counter() - t0},
                          default=lambda x: None))
         return 0
     print(f"\nn = {args.robots}, {episodes} episodes x {len(shapes)} shapes "
           f"({', '.join(shapes)}, closest pair {args.spacing:g} m); cell: success % / "
-          f"formed % / held % of formed / collisions per episode / steps over the lower bound")
+          f"formed % / held % of formed / collisions per episode / steps over the lower bound"
+          + ("" if args.safety == "orca" else f"; safety filter: {args.safety}"))
     w = max(len(b) for b in brains)
     print(f"| case | {' | '.join(f'{b:<{w}}' for b in brains)} |")
     print("|---" * (len(brains) + 1) + "|")

@@ -58,7 +58,13 @@ from runtime.decision.formation import min_swept_separation
 from runtime.decision.local import LocalDecisions
 from runtime.decision.patterns import PatternError, make_pattern, pattern_label
 from runtime.decision.pipeline import decide_batch
-from runtime.decision.safety import OrcaParams, pattern_guard_note
+from runtime.decision.safety import (
+    SAFETY_MODES,
+    OrcaParams,
+    pattern_guard_note,
+    safety_mode,
+    safety_params,
+)
 from runtime.errors import InputError
 from runtime.types import Array, BoolArray
 from runtime.world_config import DEFAULT_WORLD, HOLD_SHARE, WorldConfig
@@ -279,7 +285,7 @@ def evaluate_brain(
         n_robots=n_robots,
         episodes=E,
         seed=seed,
-        safety="orca" if safety is not None else "off",
+        safety=safety_mode(safety),
         orca=asdict(safety) if safety is not None else None,
         success_rate=float(ok.mean()),
         formed_rate=float(formed.mean()),
@@ -407,9 +413,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--safety",
-        choices=("orca", "off"),
+        choices=SAFETY_MODES,
         default="orca",
-        help="the robot's ORCA filter (default) or the raw brain",
+        help="the robot's ORCA filter (default), the raw brain ('off'), or ORCA without its "
+        "last-resort guard ('orca-no-guard': not safe on imperfect views; it measures what "
+        "the guard costs)",
     )
     p.add_argument(
         "--orca-time-horizon-s",
@@ -489,8 +497,8 @@ def run(args: argparse.Namespace) -> int:
     if args.hold_steps < 0:
         print("patternrl eval: --hold-steps must be >= 0", file=sys.stderr)
         return 2
-    safety = OrcaParams(time_horizon_s=args.orca_time_horizon_s,
-                        landing=not args.orca_no_landing) if args.safety == "orca" else None
+    safety = safety_params(args.safety, OrcaParams(time_horizon_s=args.orca_time_horizon_s,
+                                                   landing=not args.orca_no_landing))
     note = pattern_guard_note(None if pattern == RANDOM_PATTERN else make_pattern(pattern, n),
                               conditions, safety)
     if note is not None:

@@ -125,6 +125,7 @@ import math
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -137,6 +138,7 @@ from runtime.decision.patterns import min_spacing
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
+    "SAFETY_MODES",
     "FilterResult",
     "OrcaFilter",
     "OrcaParams",
@@ -149,6 +151,8 @@ __all__ = [
     "make_filter",
     "orca_filter",
     "pattern_guard_note",
+    "safety_mode",
+    "safety_params",
     "uncertainty_bound",
     "uncertainty_margin",
     "uncertainty_params",
@@ -195,6 +199,10 @@ class OrcaParams:
     """For a team on a synchronised plan (plan brains, frame rules), the horizon is
     at most the plan's time left, ``K dt`` (see "Landing" in the module docstring
     and :func:`landing`)."""
+    guard: bool = True
+    """Whether :func:`uncertainty_params` gives the filter its last-resort guard. False is for
+    measuring what the guard costs (``eval --safety orca-no-guard``): ORCA alone is not safe
+    on imperfect views, so no robot runs without it."""
 
 
 def landing(params: OrcaParams, steps_left: float | None,
@@ -325,14 +333,35 @@ def guard_shares(own_step: npt.ArrayLike, peer_step: npt.ArrayLike, toward: npt.
     return out
 
 
+SAFETY_MODES: Final = ("orca", "off", "orca-no-guard")
+"""What ``eval --safety`` and ``benchmarks/conditions.py --safety`` may run: the robot's filter,
+the raw brain, or ORCA without its last-resort guard (for measuring what the guard costs)."""
+
+
+def safety_params(mode: str, params: OrcaParams = OrcaParams()) -> OrcaParams | None:
+    """The filter a mode of :data:`SAFETY_MODES` runs, from ``params`` (None: the raw brain)."""
+    if mode not in SAFETY_MODES:
+        raise ValueError(f"safety mode must be one of {', '.join(SAFETY_MODES)}, got {mode!r}")
+    if mode == "off":
+        return None
+    return params if mode == "orca" else replace(params, guard=False)
+
+
+def safety_mode(params: OrcaParams | None) -> str:
+    """The mode of :data:`SAFETY_MODES` that ``params`` run (the inverse of
+    :func:`safety_params`)."""
+    return "off" if params is None else "orca" if params.guard else "orca-no-guard"
+
+
 def uncertainty_params(params: OrcaParams, conditions: Conditions,
                        world: WorldConfig = DEFAULT_WORLD) -> OrcaParams:
-    """``params`` with :func:`uncertainty_margin` as their ``uncertainty_margin_m`` (the same
-    params under perfect conditions)."""
+    """``params`` with :func:`uncertainty_margin` as their ``uncertainty_margin_m`` and
+    :func:`guard_bound` as their guard (none where ``params.guard`` is False; the same params
+    under perfect conditions)."""
     if conditions == PERFECT:
         return params
     return replace(params, uncertainty_margin_m=uncertainty_margin(conditions, world),
-                   guard_margin_m=guard_bound(conditions, world),
+                   guard_margin_m=guard_bound(conditions, world) if params.guard else -1.0,
                    guard_gain=conditions.gain_noise)
 
 

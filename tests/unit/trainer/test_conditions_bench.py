@@ -95,3 +95,17 @@ def test_a_shape_a_to_b_starts_every_episode_from_a_formed(bench: ModuleType) ->
     assert row["formed"] == r.formed_rate and row["steps_ratio"] == pytest.approx(r.steps_ratio)
     assert row["travel_ratio"] == pytest.approx(r.travel_ratio) and r.travel_ratio > 1.0
     assert bench.TRANSITIONS[0] == "circle>cross"
+
+
+def test_safety_modes_run_the_filter_with_and_without_its_guard(bench: ModuleType) -> None:
+    """``--safety``: the robots' filter, ORCA without its guard, or the raw brains; the rows
+    say which. The charging adversary 3 steps late collides only without the guard."""
+    rows = {s: bench.run_case("adversary:charge+est", "late3", 10, 2, 3_000_000, ("circle",),
+                              safety=s) for s in ("orca", "orca-no-guard", "off")}
+    assert {s: r["safety"] for s, r in rows.items()} == {s: s for s in rows}
+    assert rows["orca"]["collisions_per_episode"] == 0.0
+    assert rows["orca-no-guard"]["collisions_per_episode"] > 0.0
+    assert rows["off"]["collisions_per_episode"] > 0.0
+    bad = _run("--safety", "bogus", "--episodes", "1")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert "--safety" in bad.stderr.strip().splitlines()[-1]

@@ -113,3 +113,23 @@ def test_eval_refuses_an_unknown_start_in_one_line(capsys: pytest.CaptureFixture
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "spiral" in err[0] and err[0].startswith("patternrl eval:")
+
+
+def test_eval_without_the_guard_lets_the_charging_adversary_collide(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--safety orca-no-guard`` measures what the guard costs: on views 3 steps late the
+    robots that charge their nearest peer collide without it and not with it."""
+    import json
+
+    base = ["eval", "--brain", "adversary:charge", "--pattern", "circle", "--robots", "10",
+            "--episodes", "2", "--no-progress", "--json", "--conditions", "latency_steps=3",
+            "--estimator", "--seed", "3000000"]
+    out = {}
+    for mode in ("orca", "orca-no-guard"):
+        assert main([*base, "--safety", mode]) == 0
+        out[mode] = json.loads(capsys.readouterr().out)
+    assert out["orca"]["safety"] == "orca" and out["orca"]["collisions"] == 0
+    assert out["orca-no-guard"]["safety"] == "orca-no-guard"
+    assert out["orca-no-guard"]["orca"]["guard"] is False
+    assert out["orca-no-guard"]["collisions"] > 0

@@ -392,3 +392,29 @@ def test_guard_shares_give_the_room_to_the_robot_that_comes() -> None:
     got = guard_shares(own, peer, toward)
     assert got[0] > 0.95 and got[3] < 0.05
     np.testing.assert_allclose(got[[1, 2, 4, 5]], 0.5)
+
+
+def test_a_filter_without_its_guard_keeps_no_guard_under_any_condition() -> None:
+    """``safety_params("orca-no-guard")``: the same filter, its guard off whatever the
+    conditions; the robots' filter keeps one under every imperfect condition."""
+    from runtime.conditions import parse_conditions
+    from runtime.decision.safety import (
+        SAFETY_MODES,
+        guard_distance,
+        safety_mode,
+        safety_params,
+        uncertainty_params,
+    )
+
+    assert safety_params("off") is None
+    for mode in SAFETY_MODES:
+        assert safety_mode(safety_params(mode)) == mode
+    for spec in ("latency_steps=3", "noise_m=0.05", "realistic", "harsh"):
+        c = parse_conditions(spec)
+        with_guard = uncertainty_params(safety_params("orca"), c)
+        without = uncertainty_params(safety_params("orca-no-guard"), c)
+        assert guard_distance(with_guard) > 2 * DEFAULT_WORLD.radius_m
+        assert guard_distance(without) == 0.0
+        assert without.uncertainty_margin_m == with_guard.uncertainty_margin_m
+    with pytest.raises(ValueError, match="safety mode"):
+        safety_params("bogus")
