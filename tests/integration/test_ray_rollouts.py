@@ -16,9 +16,15 @@ TINY = TrainConfig(n_robots=4, n_envs=4, rollout_steps=8, minibatch=64, ae_steps
                    policy_steps=2, value_steps=2, eval_every=2, eval_episodes=4, seed=3)
 
 
-def test_one_ray_worker_trains_the_in_process_brain(tmp_path: Path) -> None:
-    """Under one condition and under a mixture of two (the worker plays both parts in order)."""
+def test_one_ray_worker_trains_the_in_process_brain(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under one condition and under a mixture of two (the worker plays both parts in order).
+
+    Ray starts its workers at niceness 15, so on a machine whose cores are busy the worker
+    barely ran: this test took 535 s with two spin loops beside it, 74 s with the worker at
+    the test's own niceness, which changes nothing in what it computes."""
     ray = pytest.importorskip("ray")
+    monkeypatch.setenv("RAY_worker_niceness", "0")
     plan = dict(patterns=["line"], out=tmp_path / "b.onnx", episodes=1, write_files=False,
                 progress=False)
     configs = [TINY, TINY.with_(obs="plan", conditions="perfect;noise_m=0.05")]
