@@ -21,8 +21,8 @@ def test_one_ray_worker_trains_the_in_process_brain(tmp_path: Path,
     """Under one condition and under a mixture of two (the worker plays both parts in order).
 
     Ray starts its workers at niceness 15, so on a machine whose cores are busy the worker
-    barely ran: this test took 535 s with two spin loops beside it, 74 s with the worker at
-    the test's own niceness, which changes nothing in what it computes."""
+    barely ran: beside three or more spin loops this test took 535 s, and 74 s beside four with
+    the worker at the test's own niceness, which changes nothing in what it computes."""
     ray = pytest.importorskip("ray")
     monkeypatch.setenv("RAY_worker_niceness", "0")
     plan = dict(patterns=["line"], out=tmp_path / "b.onnx", episodes=1, write_files=False,
