@@ -39,6 +39,8 @@ from typing import Any, Literal, get_type_hints
 from runtime.conditions import Conditions, parse_conditions
 from runtime.decision.observation import MAX_MEMORY_FRAMES, ObservationSpec
 from runtime.errors import InputError
+from runtime.world_config import DEFAULT_WORLD
+from trainer.world.episodes import check_crowd
 from trainer.world.reward import RewardConfig
 
 Algo = Literal["pattern-rl", "ppo"]
@@ -90,6 +92,14 @@ class TrainConfig:
     """The radius margin (m) of the filter that gives ``safety_imitation``'s lesson: wider than
     the robots' own (0.02 m), so that a brain a few centimetres off its lesson still keeps
     clear of its neighbours."""
+    crowded_share: float = 0.0
+    """The share of training episodes that start crowded: the team drawn in a square of
+    ``crowded_arena_m`` at the arena's centre instead of the whole arena
+    (:class:`trainer.world.episodes.EpisodeDraws`, "Crowded starts"), so that robots meet their
+    neighbours on the way far more often than from spread starts. The held-out evaluation keeps
+    the arena's starts. 0: none."""
+    crowded_arena_m: float = 2.5
+    """The side (m) of the crowded starts' square."""
     freeze_normaliser: bool = False
     """Keep the observation normaliser's statistics as the run starts with them (a fine-tune
     from ``--init``): otherwise the first rollouts' statistics, folded into the brain's, move
@@ -208,6 +218,7 @@ class TrainConfig:
             raise ValueError(f"safety_imitation must be >= 0, got {self.safety_imitation}")
         if not (math.isfinite(self.lesson_margin_m) and 0 <= self.lesson_margin_m <= 1):
             raise ValueError(f"lesson_margin_m must be in [0, 1] m, got {self.lesson_margin_m}")
+        check_crowd((self.crowded_share, self.crowded_arena_m), self.n_robots, DEFAULT_WORLD)
         if not 0 <= self.hold_steps <= 1000:
             raise ValueError(f"hold_steps must be in 0..1000, got {self.hold_steps}")
         for name in ("n_envs", "rollout_steps", "minibatch", "n_robots"):

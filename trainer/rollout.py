@@ -94,7 +94,8 @@ def stage_world(cfg: TrainConfig, world: WorldConfig, pattern: str, it: int, sta
                     reward=reward_for(cfg), seed=world_seed, first_env=a,
                     rank_goals=cfg.front in ("rank", "slots"),
                     conditions=conditions if conditions is not None else cfg.world_conditions,
-                    hold_steps=cfg.hold_steps)
+                    hold_steps=cfg.hold_steps,
+                    crowd=(cfg.crowded_share, cfg.crowded_arena_m))
     obs = bw.observe()
     if cfg.desync:
         # every world starts at once; cut each first episode at a random step (a

@@ -14,6 +14,15 @@ Starts and patterns
     sequence to the next). Patterns are ``make_pattern(name, N)`` (cached);
     ``"random"`` draws a ``random_pattern``.
 
+Crowded starts
+    With ``crowd = (share, side)`` an env's reset first draws whether this episode starts
+    crowded (with probability ``share``): its N starts are then drawn in a square of ``side``
+    metres at the arena's centre, still pairwise >= ``start_separation`` apart. A crowded team
+    has to pass its neighbours on the way, so the states where robots meet, rare from starts
+    spread over the whole arena, come often: training only (the held-out evaluation and
+    ``eval`` keep the arena). Without ``crowd`` no extra draw is made, so every seed draws
+    what it drew before.
+
 What the world reports
     :class:`StepResult` for every step of :class:`trainer.world.training_world.BatchWorld`,
     with :class:`EpisodeStats` for the envs whose episodes ended in it.
@@ -35,12 +44,15 @@ from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 
 __all__ = [
+    "MAX_START_DENSITY",
     "RANDOM_PATTERN",
     "EpisodeDraws",
     "EpisodeStats",
     "StepResult",
+    "check_crowd",
     "check_pattern",
     "pattern_list",
+    "start_density",
 ]
 
 RANDOM_PATTERN = "random"
@@ -111,8 +123,10 @@ class EpisodeDraws:
         seed: int,
         first_env: int = 0,
         start_pattern: str | Path | None = None,
+        crowd: tuple[float, float] | None = None,
     ) -> None:
         self.n_envs, self.n_robots, self.first_env, self.world = n_envs, n_robots, first_env, world
+        self.crowd = check_crowd(crowd, n_robots, world)
         self.start: Array | None = None  # (N, 2) a formed pattern every episode starts in (m)
         if start_pattern is not None and str(start_pattern) != RANDOM_PATTERN:
             start = make_pattern(start_pattern, n_robots, world)
@@ -171,9 +185,15 @@ class EpisodeDraws:
                 a = rng.uniform(0.0, 2.0 * math.pi, self.n_robots)
                 out.append(self.start + np.stack([r * np.cos(a), r * np.sin(a)], axis=1))
             return np.stack(out)
-        N, side = self.n_robots, self.world.arena_m
+        N, arena = self.n_robots, self.world.arena_m
+        side = np.full(len(rngs), arena)
+        if self.crowd is not None:
+            share, crowded = self.crowd
+            side[[rng.uniform() < share for rng in rngs]] = crowded
+        lo = (0.5 * (arena - side))[:, None, None]  # each env's square, centred in the arena
         sep2 = self.world.start_separation_m**2
-        P = np.stack([rng.uniform(0.0, side, (N, 2)) for rng in rngs])
+        P = np.stack([rng.uniform(0.0, s, (N, 2)) for rng, s in zip(rngs, side, strict=True)])
+        P = P + lo
         for _ in range(_MAX_START_DRAWS):
             diff = P[:, :, None, :] - P[:, None, :, :]
             close = np.einsum("eijk,eijk->eij", diff, diff) < sep2
@@ -181,5 +201,30 @@ class EpisodeDraws:
             if not bad.any():
                 return P
             for r in np.flatnonzero(bad.any(axis=1)):
-                P[r, bad[r]] = rngs[r].uniform(0.0, side, (int(bad[r].sum()), 2))
+                redraw = rngs[r].uniform(0.0, side[r], (int(bad[r].sum()), 2))
+                P[r, bad[r]] = redraw + lo[r, 0]
         raise RuntimeError("could not draw separated starts; the arena is too crowded")
+
+
+MAX_START_DENSITY = 0.3
+"""The most of a start square that N discs of the start separation may cover."""
+
+
+def start_density(n_robots: int, side_m: float, world: WorldConfig) -> float:
+    """The share of a square of ``side_m`` that N discs of the start separation cover."""
+    return n_robots * math.pi * (world.start_separation_m / 2.0) ** 2 / side_m**2
+
+
+def check_crowd(crowd: tuple[float, float] | None, n_robots: int,
+                world: WorldConfig) -> tuple[float, float] | None:
+    """``crowd`` as (share, side) if usable, None for none; ValueError (one line) if not."""
+    if crowd is None or crowd[0] == 0:
+        return None
+    share, side = float(crowd[0]), float(crowd[1])
+    if not (math.isfinite(share) and 0 < share <= 1):
+        raise ValueError(f"the crowded share must be in [0, 1], got {share}")
+    if not (math.isfinite(side) and 0 < side <= world.arena_m):
+        raise ValueError(f"the crowded square must be in (0, {world.arena_m}] m, got {side}")
+    if start_density(n_robots, side, world) > MAX_START_DENSITY:
+        raise ValueError(f"{n_robots} robots do not fit apart in a crowded square of {side} m")
+    return share, side

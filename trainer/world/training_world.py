@@ -48,7 +48,6 @@ Starts and patterns
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -66,7 +65,13 @@ from runtime.types import Array, BoolArray, F32Array, IntArray
 from runtime.world_config import DEFAULT_WORLD, WorldConfig
 from trainer.ppo.rank import rank_goals
 from trainer.world.contacts import move
-from trainer.world.episodes import EpisodeDraws, EpisodeStats, StepResult
+from trainer.world.episodes import (
+    MAX_START_DENSITY,
+    EpisodeDraws,
+    EpisodeStats,
+    StepResult,
+    start_density,
+)
 from trainer.world.reward import DEFAULT_REWARD, PAPER_REWARD, RewardConfig, step_reward
 from trainer.world.sensed import SensedRows
 
@@ -100,6 +105,7 @@ class BatchWorld:
         conditions: Conditions = PERFECT,
         hold_steps: int = 0,
         start_pattern: str | Path | None = None,
+        crowd: tuple[float, float] | None = None,
     ) -> None:
         if n_envs < 1:
             raise ValueError(f"n_envs must be >= 1, got {n_envs}")
@@ -109,8 +115,7 @@ class BatchWorld:
             raise ValueError(f"observation '{obs_spec.name}' is for {obs_spec.n_robots} robots")
         if world.max_step_m > world.radius_m + 1e-12:  # no robot may cross a centre in a step
             raise ValueError(f"the contact model needs v_max * dt <= R, got {world.max_step_m}")
-        density = n_robots * math.pi * (world.start_separation_m / 2.0) ** 2 / world.arena_m**2
-        if density > 0.3:
+        if start_density(n_robots, world.arena_m, world) > MAX_START_DENSITY:
             raise ValueError(f"{n_robots} robots do not fit apart in a {world.arena_m} m arena")
         if first_env < 0:
             raise ValueError(f"first_env must be >= 0, got {first_env}")
@@ -119,7 +124,8 @@ class BatchWorld:
         self.conditions = conditions
         self.hold_steps = int(hold_steps)
         # each env's generator and the pattern set (the starts' pattern checked now)
-        self._draws = EpisodeDraws(n_envs, n_robots, world, seed, first_env, start_pattern)
+        self._draws = EpisodeDraws(n_envs, n_robots, world, seed, first_env, start_pattern,
+                                   crowd)
         self.n_envs = n_envs
         self.first_env = first_env
         self.n_robots = n_robots

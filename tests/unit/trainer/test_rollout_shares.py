@@ -22,3 +22,16 @@ def test_shares_draw_the_starts_of_one_batch() -> None:
         assert np.array_equal(part.steps, whole.steps[a:b])
     with pytest.raises(ValueError):
         env_shares(2, 3)
+
+
+def test_a_runs_crowded_starts_reach_its_worlds_and_its_shares() -> None:
+    """``crowded_share`` / ``crowded_arena_m`` start the run's worlds in the small square, the
+    shares of a batch as the whole."""
+    cfg = TINY.with_(n_envs=6, crowded_share=1.0, crowded_arena_m=1.5)
+    whole, _ = stage_world(cfg, DEFAULT_WORLD, "line", 0, 0)
+    lo, hi = 0.5 * (DEFAULT_WORLD.arena_m - 1.5), 0.5 * (DEFAULT_WORLD.arena_m + 1.5)
+    assert ((whole.positions >= lo) & (whole.positions <= hi)).all()
+    part, _ = stage_world(cfg, DEFAULT_WORLD, "line", 0, 0, (2, 6))
+    assert np.array_equal(part.positions, whole.positions[2:6])
+    spread, _ = stage_world(TINY.with_(n_envs=6), DEFAULT_WORLD, "line", 0, 0)
+    assert np.ptp(spread.positions, axis=1).max() > 1.5

@@ -118,6 +118,8 @@ def test_front_end_is_checked_against_the_observation() -> None:
         ("", ["reward=1"], "--set: reward is a table"),
         ("", ["reward.speed=1"], "--set: unknown key 'reward.speed'"),
         ("", ["returns=td"], "--set: returns: unknown returns 'td'"),
+        ("", ["crowded_share=1.5"], "crowded share must be in [0, 1]"),
+        ("", ["crowded_share=0.5", "crowded_arena_m=0.3"], "do not fit apart in a crowded"),
     ],
 )
 def test_bad_config_is_one_line_exit_2_naming_the_key(tmp_path, capsys, toml, sets, named) -> None:

@@ -109,6 +109,27 @@ def test_a_start_pattern_starts_every_episode_formed_in_it() -> None:
     np.testing.assert_array_equal(again.positions, w.positions)
 
 
+def test_crowded_starts_draw_a_share_of_teams_in_a_small_square() -> None:
+    """With ``crowd = (share, side)`` about that share of the episodes start in a square of
+    ``side`` at the arena's centre, still apart; without it every seed draws what it did."""
+    side, n_envs = 2.0, 200
+    w = make(n_envs=n_envs, n_robots=10, crowd=(0.5, side), seed=11)
+    lo, hi = 0.5 * (W.arena_m - side), 0.5 * (W.arena_m + side)
+    inside = ((w.positions >= lo) & (w.positions <= hi)).all(axis=(1, 2))
+    spread = np.ptp(w.positions, axis=1).max(axis=1)
+    assert 0.35 < inside.mean() < 0.65  # the share, within its binomial spread
+    assert np.all(spread[inside] <= side)
+    assert np.all(min_separation(w.positions) >= W.start_separation_m)
+    assert (spread[~inside] > side).all()  # the others spread over the arena
+    plain, zero = make(n_envs=8, n_robots=10, seed=11), make(n_envs=8, n_robots=10,
+                                                              crowd=(0.0, side), seed=11)
+    np.testing.assert_array_equal(plain.positions, zero.positions)
+    with pytest.raises(ValueError, match="do not fit apart in a crowded square"):
+        make(n_robots=10, crowd=(0.5, 0.5))
+    with pytest.raises(ValueError, match="crowded share"):
+        make(crowd=(1.5, side))
+
+
 def test_patterns_drawn_per_env_and_random_shapes() -> None:
     w = make(n_envs=16, patterns=("circle", "line"))
     assert set(w.pattern_ids.tolist()) == {0, 1}
